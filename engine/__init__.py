@@ -1,0 +1,57 @@
+"""Numerical core: free-floating space robot kinematics, the generalized Jacobian,
+singularity-robust inverses, the Cartesian planner, replay and GA tuning.
+
+numpy and scipy only; no web or database code. SI units and radians throughout.
+"""
+
+from engine.inverses import (
+    METHODS,
+    AdaptiveDamping,
+    DampedLeastSquares,
+    InverseStep,
+    PlainInverse,
+    RobustInverse,
+    SelectivelyDampedLS,
+    SingularValueFiltering,
+    WeightedDLS,
+    make_inverse,
+    method_names,
+)
+from engine.jacobian import GJMResult, generalized_jacobian
+from engine.kinematics import ForwardKinematics, State, forward_kinematics
+from engine.metrics import BatchMetrics, Metrics
+from engine.model import RobotModel, table1_robot
+from engine.planner import BatchResult, PlanResult, plan, plan_batch
+from engine.replay import ReplayResult, replay
+from engine.trajectory import CartesianTask, paper_task
+
+__all__ = [
+    "METHODS",
+    "AdaptiveDamping",
+    "BatchMetrics",
+    "BatchResult",
+    "CartesianTask",
+    "DampedLeastSquares",
+    "ForwardKinematics",
+    "GJMResult",
+    "InverseStep",
+    "Metrics",
+    "PlainInverse",
+    "PlanResult",
+    "ReplayResult",
+    "RobotModel",
+    "RobustInverse",
+    "SelectivelyDampedLS",
+    "SingularValueFiltering",
+    "State",
+    "WeightedDLS",
+    "forward_kinematics",
+    "generalized_jacobian",
+    "make_inverse",
+    "method_names",
+    "paper_task",
+    "plan",
+    "plan_batch",
+    "replay",
+    "table1_robot",
+]

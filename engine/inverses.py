@@ -1,0 +1,360 @@
+"""Singularity-robust inverses of the GJM: one protocol, small frozen strategies.
+
+Every strategy maps a Jacobian ``J (..., 6, n)`` and a twist ``xdot (..., 6)`` to joint rates
+``qd (..., n)``. Parameters may be scalars or arrays of shape ``(B,)`` matching a leading
+batch axis, so one strategy object evaluates a whole GA population at once.
+
+All SVD-based strategies are written as filters of the singular values,
+``qd = sum_i f(sigma_i) v_i u_i^T xdot``, and report an *effective damping* per singular
+direction, ``lambda_i = sqrt(sigma_i / f_i - sigma_i^2)``: the constant-damping value that
+would give the same gain (0 means undamped; for DLS it is the damping itself).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, NamedTuple, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from engine.spatial import FloatArray
+
+_TINY = 1e-300
+
+
+class SVD(NamedTuple):
+    """Thin SVD ``J = U diag(s) Vt``: ``U (..., 6, m)``, ``s (..., m)`` descending, ``Vt (..., m, n)``."""
+
+    U: FloatArray
+    s: FloatArray
+    Vt: FloatArray
+
+
+def thin_svd(J: FloatArray) -> SVD:
+    U, s, Vt = np.linalg.svd(J, full_matrices=False)
+    return SVD(U, s, Vt)
+
+
+class InverseStep(NamedTuple):
+    """Result of one inverse: ``qd (..., n)`` rad/s and effective ``damping (..., m)``."""
+
+    qd: FloatArray
+    damping: FloatArray
+
+
+class RobustInverse(Protocol):
+    """A strategy mapping an end-effector twist to joint rates."""
+
+    name: ClassVar[str]
+
+    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
+        """Joint rates for ``J (..., 6, n)``, ``xdot (..., 6)``; ``svd`` may be precomputed."""
+        ...
+
+    def params(self) -> dict[str, Any]:
+        """Public parameter names (as accepted by :func:`make_inverse`) and values."""
+        ...
+
+
+def _param(value: FloatArray | float) -> FloatArray:
+    """Parameter broadcastable against singular values ``(..., m)``."""
+    return np.asarray(value, dtype=float)[..., None]
+
+
+def _apply_filter(svd: SVD, xdot: FloatArray, gain: FloatArray) -> FloatArray:
+    """``sum_i gain_i v_i u_i^T xdot``."""
+    x = np.einsum("...im,...i->...m", svd.U, xdot)
+    return np.einsum("...mn,...m->...n", svd.Vt, gain * x)
+
+
+def _effective_damping(s: FloatArray, gain: FloatArray) -> FloatArray:
+    """``lambda`` with ``s / (s^2 + lambda^2) = gain`` (0 where undamped)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam_sq = np.where(gain > 0.0, s / np.maximum(gain, _TINY) - s * s, 0.0)
+    return np.sqrt(np.clip(lam_sq, 0.0, None))
+
+
+def _damped_gain(s: FloatArray, lam: FloatArray) -> FloatArray:
+    """DLS gain ``s / (s^2 + lam^2)``; the pseudo-inverse where ``lam == 0``."""
+    denom = s * s + lam * lam
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(denom > _TINY, s / np.where(denom > _TINY, denom, 1.0), 0.0)
+
+
+@dataclass(frozen=True)
+class PlainInverse:
+    """Undamped inverse: ``qd = J^-1 xdot`` for a square GJM (LU solve), the Moore-Penrose
+    pseudo-inverse otherwise (paper eq. 3). Joint rates are unbounded near singularities."""
+
+    name: ClassVar[str] = "inverse"
+    rcond: float = 1e-12
+
+    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
+        m = min(J.shape[-2], J.shape[-1])
+        if J.shape[-2] == J.shape[-1]:
+            try:
+                qd = np.linalg.solve(J, xdot[..., None])[..., 0]
+                return InverseStep(qd, np.zeros(J.shape[:-2] + (m,)))
+            except np.linalg.LinAlgError:
+                pass  # exactly singular somewhere: fall through to the pseudo-inverse
+        svd = svd if svd is not None else thin_svd(J)
+        keep = svd.s > self.rcond * svd.s[..., :1]
+        gain = np.where(keep, 1.0 / np.where(keep, svd.s, 1.0), 0.0)
+        return InverseStep(_apply_filter(svd, xdot, gain), np.zeros_like(svd.s))
+
+    def params(self) -> dict[str, Any]:
+        return {}
+
+
+@dataclass(frozen=True)
+class DampedLeastSquares:
+    """Constant-damping least squares (Wampler 1986; Nakamura and Hanafusa 1986), paper eq. 6:
+    ``qd = J^T (J J^T + lambda^2 I)^-1 xdot = sum_i sigma_i / (sigma_i^2 + lambda^2) v_i u_i^T xdot``
+    (eq. 10). ``lam`` in the units of the singular values."""
+
+    name: ClassVar[str] = "dls"
+    lam: FloatArray | float = 0.05
+
+    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
+        svd = svd if svd is not None else thin_svd(J)
+        lam = np.broadcast_to(_param(self.lam), svd.s.shape)
+        return InverseStep(_apply_filter(svd, xdot, _damped_gain(svd.s, lam)), np.array(lam))
+
+    def params(self) -> dict[str, Any]:
+        return {"lambda": self.lam}
+
+
+@dataclass(frozen=True)
+class AdaptiveDamping:
+    """The paper's adaptive damping (eq. 16), a separate damping per singular value:
+    ``lambda_i = lambda_max (1 + cos(pi sigma_i / epsilon)) / 2`` if ``sigma_i < epsilon``,
+    else 0; then ``qd = sum_i sigma_i / (sigma_i^2 + lambda_i^2) v_i u_i^T xdot``.
+    Continuous at ``sigma_i = epsilon``; equal to the plain inverse when all
+    ``sigma_i >= epsilon``."""
+
+    name: ClassVar[str] = "adaptive"
+    lam_max: FloatArray | float = 0.0571
+    epsilon: FloatArray | float = 0.0677
+
+    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
+        svd = svd if svd is not None else thin_svd(J)
+        lam_max, eps = _param(self.lam_max), _param(self.epsilon)
+        inside = svd.s < eps
+        lam = np.where(inside, 0.5 * lam_max * (1.0 + np.cos(np.pi * svd.s / eps)), 0.0)
+        return InverseStep(_apply_filter(svd, xdot, _damped_gain(svd.s, lam)), lam)
+
+    def params(self) -> dict[str, Any]:
+        return {"lambda_max": self.lam_max, "epsilon": self.epsilon}
+
+
+@dataclass(frozen=True)
+class WeightedDLS:
+    """Variable damping driven by the smallest singular value, applied to all directions
+    (Maciejewski and Klein 1988; Chiaverini, Siciliano and Egeland 1994; as in Orocos KDL's
+    ``ChainIkSolverVel_wdls``): ``lambda = lambda_max sqrt(1 - (sigma_min / epsilon)^2)`` if
+    ``sigma_min < epsilon``, else 0."""
+
+    name: ClassVar[str] = "wdls"
+    lam_max: FloatArray | float = 0.05
+    epsilon: FloatArray | float = 0.1
+
+    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
+        svd = svd if svd is not None else thin_svd(J)
+        lam_max, eps = _param(self.lam_max), _param(self.epsilon)
+        s_min = svd.s[..., -1:]
+        ratio = np.clip(s_min / eps, 0.0, 1.0)
+        lam = np.broadcast_to(lam_max * np.sqrt(1.0 - ratio * ratio), svd.s.shape)
+        return InverseStep(_apply_filter(svd, xdot, _damped_gain(svd.s, lam)), np.array(lam))
+
+    def params(self) -> dict[str, Any]:
+        return {"lambda_max": self.lam_max, "epsilon": self.epsilon}
+
+
+def _clamp_max_abs(w: FloatArray, limit: FloatArray) -> FloatArray:
+    """Buss and Kim's ClampMaxAbs over the last axis: scale ``w`` so ``max |w_j| <= limit``."""
+    peak = np.max(np.abs(w), axis=-1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(peak > limit, limit / np.where(peak > 0.0, peak, 1.0), 1.0)
+    return w * scale
+
+
+@dataclass(frozen=True)
+class SelectivelyDampedLS:
+    """Selectively damped least squares (Buss and Kim 2005, J. Graphics Tools 10(3)), at the
+    velocity level. The twist is split into its linear and angular 3-blocks (the "end
+    effectors" of the original). Per singular direction i:
+    ``N_i = sum_l ||u_{l,i}||``, ``M_i = sigma_i^-1 sum_j |v_{j,i}| sum_l ||J_{l,j}||``,
+    ``gamma_i = min(1, N_i / M_i) gamma_max``,
+    ``phi_i = ClampMaxAbs(sigma_i^-1 (u_i^T xdot) v_i, gamma_i)``; finally
+    ``qd = ClampMaxAbs(sum_i phi_i, gamma_max)``. ``gamma_max`` in rad/s bounds every joint
+    rate."""
+
+    name: ClassVar[str] = "sdls"
+    gamma_max: FloatArray | float = 0.1
+
+    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
+        svd = svd if svd is not None else thin_svd(J)
+        U, s, Vt = svd
+        gamma_max = _param(self.gamma_max)
+        s_safe = np.maximum(s, _TINY)
+        N = np.linalg.norm(U[..., :3, :], axis=-2) + np.linalg.norm(U[..., 3:, :], axis=-2)  # (..., m)
+        col_norm = np.linalg.norm(J[..., :3, :], axis=-2) + np.linalg.norm(J[..., 3:, :], axis=-2)  # (..., n)
+        M = np.einsum("...mn,...n->...m", np.abs(Vt), col_norm) / s_safe
+        gamma = np.minimum(1.0, N / np.maximum(M, _TINY)) * gamma_max  # (..., m)
+        alpha = np.einsum("...im,...i->...m", U, xdot)
+        phi = (alpha / s_safe)[..., :, None] * Vt  # (..., m, n) per-direction joint rates
+        phi_clamped = _clamp_max_abs(phi, gamma[..., None])
+        qd = _clamp_max_abs(phi_clamped.sum(axis=-2), gamma_max)
+        # Effective gain per direction, for reporting only.
+        raw = np.max(np.abs(phi), axis=-1)
+        clamped = np.max(np.abs(phi_clamped), axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(raw > 0.0, clamped / np.where(raw > 0.0, raw, 1.0), 1.0)
+        total_raw = np.max(np.abs(phi_clamped.sum(axis=-2)), axis=-1, keepdims=True)
+        total = np.max(np.abs(qd), axis=-1, keepdims=True)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = ratio * np.where(total_raw > 0.0, total / np.where(total_raw > 0.0, total_raw, 1.0), 1.0)
+        return InverseStep(qd, _effective_damping(s, ratio / s_safe))
+
+    def params(self) -> dict[str, Any]:
+        return {"gamma_max": self.gamma_max}
+
+
+@dataclass(frozen=True)
+class SingularValueFiltering:
+    """Singular value filtering (Colome and Torras 2015, IEEE/ASME Trans. Mechatronics
+    20(2)): each singular value is replaced by
+    ``sigma_hat = (sigma^3 + nu sigma^2 + 2 sigma + 2 sigma_0) / (sigma^2 + nu sigma + 2)``,
+    which is >= ``sigma_0`` and tends to ``sigma`` for large ``sigma``; then
+    ``qd = sum_i sigma_hat_i^-1 v_i u_i^T xdot``."""
+
+    name: ClassVar[str] = "svf"
+    sigma0: FloatArray | float = 0.01
+    nu: FloatArray | float = 10.0
+
+    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
+        svd = svd if svd is not None else thin_svd(J)
+        s = svd.s
+        sigma0, nu = _param(self.sigma0), _param(self.nu)
+        s_hat = (s**3 + nu * s**2 + 2.0 * s + 2.0 * sigma0) / (s**2 + nu * s + 2.0)
+        gain = 1.0 / s_hat
+        return InverseStep(_apply_filter(svd, xdot, gain), _effective_damping(s, gain))
+
+    def params(self) -> dict[str, Any]:
+        return {"sigma0": self.sigma0, "nu": self.nu}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A public parameter of an inverse: valid range and default GA search bounds."""
+
+    name: str  # public name (API, make_inverse keyword)
+    field: str  # dataclass field
+    default: float
+    low: float  # valid range, low inclusive unless low_open
+    high: float
+    tune_bounds: tuple[float, float]
+    low_open: bool = False
+    unit: str = ""
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    cls: type
+    params: tuple[ParamSpec, ...]
+    description: str
+
+
+METHODS: dict[str, MethodSpec] = {
+    "inverse": MethodSpec(PlainInverse, (), "plain inverse / pseudo-inverse, no damping (paper eq. 3)"),
+    "dls": MethodSpec(
+        DampedLeastSquares,
+        (ParamSpec("lambda", "lam", 0.05, 0.0, 10.0, (1e-4, 0.2)),),
+        "damped least squares with constant damping (paper eq. 6)",
+    ),
+    "adaptive": MethodSpec(
+        AdaptiveDamping,
+        (
+            ParamSpec("lambda_max", "lam_max", 0.0571, 0.0, 10.0, (1e-4, 0.2)),
+            ParamSpec("epsilon", "epsilon", 0.0677, 0.0, 10.0, (1e-4, 0.3), low_open=True),
+        ),
+        "per-singular-value adaptive damping (paper eq. 16)",
+    ),
+    "wdls": MethodSpec(
+        WeightedDLS,
+        (
+            ParamSpec("lambda_max", "lam_max", 0.05, 0.0, 10.0, (1e-4, 0.2)),
+            ParamSpec("epsilon", "epsilon", 0.1, 0.0, 10.0, (1e-4, 0.3), low_open=True),
+        ),
+        "damping from the smallest singular value, all directions (KDL wdls)",
+    ),
+    "sdls": MethodSpec(
+        SelectivelyDampedLS,
+        (ParamSpec("gamma_max", "gamma_max", 0.1, 0.0, 100.0, (1e-3, 1.0), low_open=True, unit="rad/s"),),
+        "selectively damped least squares (Buss and Kim 2005)",
+    ),
+    "svf": MethodSpec(
+        SingularValueFiltering,
+        (
+            ParamSpec("sigma0", "sigma0", 0.01, 0.0, 10.0, (1e-4, 0.2), low_open=True),
+            ParamSpec("nu", "nu", 10.0, 0.0, 1000.0, (0.1, 100.0)),
+        ),
+        "singular value filtering (Colome and Torras 2015)",
+    ),
+}
+
+
+def method_names() -> list[str]:
+    return list(METHODS)
+
+
+def method_spec(name: str) -> MethodSpec:
+    try:
+        return METHODS[name]
+    except KeyError:
+        raise ValueError(f"unknown inverse method {name!r}; valid methods: {', '.join(METHODS)}") from None
+
+
+def check_param(spec: ParamSpec, value: ArrayLike, field: str | None = None) -> FloatArray:
+    """Validate a parameter value (scalar or array) against its range; returns it as float array."""
+    label = field or spec.name
+    arr = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{label}: must be finite")
+    below = arr <= spec.low if spec.low_open else arr < spec.low
+    if np.any(below) or np.any(arr > spec.high):
+        bracket = "(" if spec.low_open else "["
+        raise ValueError(f"{label}: must be in {bracket}{spec.low}, {spec.high}], got {arr.tolist()}")
+    return arr
+
+
+def make_inverse(name: str, **params: Any) -> RobustInverse:
+    """Build the strategy ``name`` (one of :data:`METHODS`) from public parameter names.
+
+    Missing parameters take their defaults; unknown names and out-of-range values raise
+    ``ValueError``. Values may be scalars or ``(B,)`` arrays for batched evaluation.
+    """
+    spec = method_spec(name)
+    known = {p.name: p for p in spec.params}
+    unknown = set(params) - set(known)
+    if unknown:
+        valid = ", ".join(known) or "none"
+        raise ValueError(f"{name}: unknown parameter(s) {', '.join(sorted(unknown))}; valid: {valid}")
+    kwargs: dict[str, Any] = {}
+    for pname, p in known.items():
+        value = params.get(pname, p.default)
+        arr = check_param(p, value, f"{name}.{pname}")
+        kwargs[p.field] = float(arr) if arr.ndim == 0 else arr
+    inverse: RobustInverse = spec.cls(**kwargs)
+    return inverse
+
+
+def inverse_params(inverse: RobustInverse) -> dict[str, float]:
+    """Scalar public parameters of an unbatched strategy (for reports)."""
+    out: dict[str, float] = {}
+    for key, value in inverse.params().items():
+        arr = np.asarray(value, dtype=float)
+        out[key] = float(arr) if arr.ndim == 0 else math.nan
+    return out

@@ -1,0 +1,327 @@
+"""Velocity-level Cartesian planner of the paper's Figure 2, batched over parameter sets.
+
+At each sample ``t_k`` (k = 0..N): kinematics and GJM at the current state, commanded twist
+(the path's mean twist over the step, plus ``feedback_gain * pose_error`` if asked), robust
+inverse -> joint rates ``qd_k``; then ``q_{k+1} = q_k + qd_k dt``, the base attitude
+``A_0 <- exp([w_0 dt]x) A_0`` with ``w_0`` from angular-momentum conservation, and the base
+position from the fixed system centre of mass (linear momentum stays exactly zero).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from engine.inverses import SVD, RobustInverse, inverse_params, make_inverse, method_spec, thin_svd
+from engine.jacobian import gjm_batch
+from engine.kinematics import kinematics_about_com, kinematics_batch, system_com
+from engine.metrics import BatchMetrics, Metrics, compute_metrics
+from engine.model import RobotModel
+from engine.spatial import FloatArray, exp_so3, log_so3, rotation_angle
+from engine.trajectory import CartesianTask
+
+#: Default tolerances on the final pose for a plan to count as reaching its target.
+POSITION_TOLERANCE_M = 0.01
+ATTITUDE_TOLERANCE_RAD = math.radians(1.0)
+
+
+@dataclass(frozen=True)
+class _Trace:
+    """Raw arrays of a batched simulation, time-major after the batch axis."""
+
+    t: FloatArray
+    q: FloatArray  # (B, N+1, n)
+    qd: FloatArray  # (B, N+1, n)
+    base_position: FloatArray  # (B, N+1, 3)
+    base_attitude: FloatArray  # (B, N+1, 3, 3)
+    ee_position: FloatArray  # (B, N+1, 3)
+    ee_attitude: FloatArray  # (B, N+1, 3, 3)
+    singular_values: FloatArray  # (B, N+1, m)
+    det_J_g: FloatArray  # (B, N+1)
+    damping: FloatArray  # (B, N+1, m)
+
+
+def _simulate(
+    model: RobotModel,
+    task: CartesianTask,
+    inverse: RobustInverse,
+    batch: int,
+    feedback_gain: float,
+) -> _Trace:
+    n = model.n_joints
+    if task.q0.shape != (n,):
+        raise ValueError(f"q0: task has {task.q0.shape[0]} joint angles, robot has {n} joints")
+    if not math.isfinite(feedback_gain) or feedback_gain < 0.0:
+        raise ValueError("feedback_gain: must be finite and >= 0")
+    N = task.n_steps
+    m = min(6, n)
+    dt = task.dt
+    t = task.times()
+    twists = task.step_twists()
+    p_des, A_des = task.desired_pose(t)
+
+    q = np.tile(task.q0, (batch, 1))
+    A0 = np.tile(np.eye(3), (batch, 1, 1))
+    kin = kinematics_batch(model, q, A0, np.zeros((batch, 3)))
+    com = system_com(model, kin)
+
+    out_q = np.empty((batch, N + 1, n))
+    out_qd = np.empty((batch, N + 1, n))
+    out_base_p = np.empty((batch, N + 1, 3))
+    out_base_A = np.empty((batch, N + 1, 3, 3))
+    out_p = np.empty((batch, N + 1, 3))
+    out_A = np.empty((batch, N + 1, 3, 3))
+    out_s = np.empty((batch, N + 1, m))
+    out_det = np.full((batch, N + 1), np.nan)
+    out_damp = np.empty((batch, N + 1, m))
+    square = n == 6
+    with np.errstate(all="ignore"):  # a diverging plan yields inf/nan, reported by the metrics
+        for k in range(N + 1):
+            if k > 0:
+                kin = kinematics_about_com(model, q, A0, com)
+            J_g, base_map = gjm_batch(model, kin)
+            svd = thin_svd(J_g) if np.all(np.isfinite(J_g)) else _nan_svd(J_g)
+            xdot = np.broadcast_to(twists[k], (batch, 6))
+            if feedback_gain > 0.0:
+                error = np.empty((batch, 6))
+                error[:, :3] = p_des[k] - kin.ee_position
+                error[:, 3:] = log_so3(A_des[k] @ np.swapaxes(kin.ee_attitude, -1, -2))
+                xdot = xdot + feedback_gain * error
+            step = inverse.solve(J_g, xdot, svd)
+            out_q[:, k] = q
+            out_qd[:, k] = step.qd
+            out_base_p[:, k] = kin.body_com[:, 0]
+            out_base_A[:, k] = A0
+            out_p[:, k] = kin.ee_position
+            out_A[:, k] = kin.ee_attitude
+            out_s[:, k] = svd.s
+            out_damp[:, k] = step.damping
+            if square:
+                out_det[:, k] = np.linalg.det(J_g) if np.all(np.isfinite(J_g)) else np.nan
+            if k < N:
+                w0 = np.einsum("bij,bj->bi", base_map[:, 3:], step.qd)
+                A0 = exp_so3(w0 * dt) @ A0
+                q = q + step.qd * dt
+    return _Trace(t, out_q, out_qd, out_base_p, out_base_A, out_p, out_A, out_s, out_det, out_damp)
+
+
+def _nan_svd(J: FloatArray) -> SVD:
+    """SVD of a batch where some members diverged: NaN for those, the real SVD for the rest."""
+    ok = np.all(np.isfinite(J), axis=(-2, -1))
+    batch, rows, cols = J.shape
+    m = min(rows, cols)
+    U = np.full((batch, rows, m), np.nan)
+    s = np.full((batch, m), np.nan)
+    Vt = np.full((batch, m, cols), np.nan)
+    if np.any(ok):
+        good = thin_svd(J[ok])
+        U[ok], s[ok], Vt[ok] = good.U, good.s, good.Vt
+    return SVD(U, s, Vt)
+
+
+def _errors(task: CartesianTask, trace: _Trace) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    p_des, A_des = task.desired_pose(trace.t)
+    pos_err = np.linalg.norm(trace.ee_position - p_des, axis=-1)
+    att_err = rotation_angle(np.swapaxes(A_des, -1, -2) @ trace.ee_attitude)
+    att_err = np.where(np.all(np.isfinite(trace.ee_attitude), axis=(-2, -1)), att_err, np.nan)
+    return pos_err, att_err, p_des, A_des
+
+
+def _batch_metrics(task: CartesianTask, trace: _Trace, weights: tuple[float, float], aggregation: str) -> BatchMetrics:
+    pos_err, att_err, _, _ = _errors(task, trace)
+    peak = np.max(np.abs(trace.qd), axis=1)
+    return compute_metrics(
+        trace.t,
+        pos_err,
+        att_err,
+        peak,
+        trace.singular_values[..., -1],
+        np.abs(trace.det_J_g),
+        task.joint_speed_limit,
+        weights,
+        aggregation,
+    )
+
+
+def _verdict(metrics: Metrics, position_tolerance: float, attitude_tolerance: float) -> tuple[bool, str]:
+    problems = []
+    if not metrics.finite:
+        problems.append("the plan diverged (non-finite joint rates or poses)")
+    else:
+        if metrics.position_error_final > position_tolerance or metrics.attitude_error_final > attitude_tolerance:
+            problems.append(
+                f"target not reached: final errors {metrics.position_error_final:.4g} m and "
+                f"{math.degrees(metrics.attitude_error_final):.3g} deg exceed the tolerances "
+                f"{position_tolerance:g} m and {math.degrees(attitude_tolerance):.3g} deg"
+            )
+        if not metrics.joint_speed_limit_respected:
+            problems.append(
+                f"joint speed limit broken: {metrics.max_joint_speed_deg_s:.4g} deg/s on joint "
+                f"{metrics.max_joint_speed_joint + 1} (limit {math.degrees(metrics.joint_speed_limit):.4g} deg/s)"
+            )
+    if problems:
+        return False, "; ".join(problems)
+    return True, "ok"
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """A planned trajectory; arrays are time-major with ``N + 1`` samples.
+
+    ``qd[k]`` is the joint rate commanded over ``[t_k, t_{k+1}]`` (the last one is the rate
+    commanded at the end, zero without feedback). ``damping`` is the effective damping per
+    singular direction (see :mod:`engine.inverses`).
+    """
+
+    method: str
+    params: dict[str, float]
+    feedback_gain: float
+    t: FloatArray  # (N+1,) s
+    q: FloatArray  # (N+1, n) rad
+    qd: FloatArray  # (N+1, n) rad/s
+    base_position: FloatArray  # (N+1, 3) m
+    base_attitude: FloatArray  # (N+1, 3, 3)
+    ee_position: FloatArray  # (N+1, 3) m
+    ee_attitude: FloatArray  # (N+1, 3, 3)
+    ee_position_desired: FloatArray  # (N+1, 3) m
+    ee_attitude_desired: FloatArray  # (N+1, 3, 3)
+    ee_twist_desired: FloatArray  # (N+1, 6) instantaneous desired [v; w], m/s and rad/s
+    position_error: FloatArray  # (N+1,) m
+    attitude_error: FloatArray  # (N+1,) rad
+    singular_values: FloatArray  # (N+1, m) descending
+    det_J_g: FloatArray  # (N+1,) nan unless the GJM is square
+    damping: FloatArray  # (N+1, m)
+    metrics: Metrics
+    success: bool
+    message: str
+    task: CartesianTask = field(repr=False)
+
+
+def plan(
+    model: RobotModel,
+    task: CartesianTask,
+    inverse: RobustInverse,
+    *,
+    feedback_gain: float = 0.0,
+    weights: tuple[float, float] = (0.5, 0.5),
+    aggregation: str = "max",
+    position_tolerance: float = POSITION_TOLERANCE_M,
+    attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
+) -> PlanResult:
+    """Plan ``task`` with ``inverse``. ``success`` is false (with a message) if the plan
+    diverged, misses the target pose by more than the tolerances, or breaks the joint
+    speed limit; the arrays and metrics are returned in every case."""
+    trace = _simulate(model, task, inverse, 1, feedback_gain)
+    pos_err, att_err, p_des, A_des = _errors(task, trace)
+    metrics = _batch_metrics(task, trace, weights, aggregation).item(0)
+    success, message = _verdict(metrics, position_tolerance, attitude_tolerance)
+    return PlanResult(
+        method=inverse.name,
+        params=inverse_params(inverse),
+        feedback_gain=feedback_gain,
+        t=trace.t,
+        q=trace.q[0],
+        qd=trace.qd[0],
+        base_position=trace.base_position[0],
+        base_attitude=trace.base_attitude[0],
+        ee_position=trace.ee_position[0],
+        ee_attitude=trace.ee_attitude[0],
+        ee_position_desired=p_des,
+        ee_attitude_desired=A_des,
+        ee_twist_desired=task.desired_twist(trace.t),
+        position_error=pos_err[0],
+        attitude_error=att_err[0],
+        singular_values=trace.singular_values[0],
+        det_J_g=trace.det_J_g[0],
+        damping=trace.damping[0],
+        metrics=metrics,
+        success=success,
+        message=message,
+        task=task,
+    )
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """Metrics of ``B`` plans of one method; ``params[name]`` is ``(B,)``."""
+
+    method: str
+    params: dict[str, FloatArray]
+    metrics: BatchMetrics
+
+    @property
+    def objective_b(self) -> FloatArray:
+        return self.metrics.objective_b
+
+
+def _stack_params(method: str, params: Mapping[str, Sequence[float]] | Sequence[Mapping[str, float]]) -> dict[str, FloatArray]:
+    spec = method_spec(method)
+    if isinstance(params, Mapping):
+        columns = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in params.items()}
+    else:
+        rows = list(params)
+        if not rows:
+            raise ValueError("params: at least one parameter set is needed")
+        names = {p.name for p in spec.params}
+        columns = {}
+        for name in names:
+            columns[name] = np.array([row.get(name, _default(method, name)) for row in rows], dtype=float)
+        extra = set().union(*(set(r) for r in rows)) - names
+        if extra:
+            raise ValueError(f"{method}: unknown parameter(s) {', '.join(sorted(extra))}")
+    sizes = {v.shape for v in columns.values()}
+    if len(sizes) > 1 or any(len(s) != 1 for s in sizes):
+        raise ValueError("params: every parameter needs the same number of values (one per plan)")
+    return columns
+
+
+def _default(method: str, name: str) -> float:
+    for p in method_spec(method).params:
+        if p.name == name:
+            return p.default
+    raise ValueError(f"{method}: unknown parameter {name!r}")
+
+
+def plan_batch(
+    model: RobotModel,
+    task: CartesianTask,
+    method: str,
+    params: Mapping[str, Sequence[float]] | Sequence[Mapping[str, float]],
+    *,
+    batch_size: int | None = None,
+    feedback_gain: float = 0.0,
+    weights: tuple[float, float] = (0.5, 0.5),
+    aggregation: str = "max",
+) -> BatchResult:
+    """Plan many parameter sets of ``method`` in one vectorised simulation.
+
+    ``params`` is either ``{name: (B,) values}`` or a list of ``{name: value}`` dicts.
+    ``batch_size`` splits very large populations into chunks to bound memory.
+    """
+    columns = _stack_params(method, params)
+    total = next(iter(columns.values())).shape[0] if columns else 1
+    if not columns and isinstance(params, Sequence):
+        total = max(1, len(params))
+    chunk = batch_size or total
+    parts = []
+    for start in range(0, total, chunk):
+        stop = min(total, start + chunk)
+        inverse = make_inverse(method, **{k: v[start:stop] for k, v in columns.items()})
+        trace = _simulate(model, task, inverse, stop - start, feedback_gain)
+        parts.append(_batch_metrics(task, trace, weights, aggregation))
+    return BatchResult(method=method, params=columns, metrics=_concat(parts))
+
+
+def _concat(parts: list[BatchMetrics]) -> BatchMetrics:
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+    values: dict[str, Any] = {}
+    for name in first.__dataclass_fields__:
+        v = getattr(first, name)
+        values[name] = np.concatenate([getattr(p, name) for p in parts]) if isinstance(v, np.ndarray) else v
+    return BatchMetrics(**values)
