@@ -1,7 +1,7 @@
 """Numerical core: free-floating space robot kinematics, the generalized Jacobian,
 singularity-robust inverses, the Cartesian planner, replay and GA tuning.
 
-numpy and scipy only; no web or database code. SI units and radians throughout.
+numpy and scipy (and DEAP for the GA); no web or database code. SI units and radians throughout.
 """
 
 from engine.inverses import (
@@ -24,6 +24,7 @@ from engine.model import RobotModel, table1_robot
 from engine.planner import BatchResult, PlanResult, plan, plan_batch
 from engine.replay import ReplayResult, replay
 from engine.trajectory import CartesianTask, paper_task
+from engine.tuning import Comparison, TuneProgress, TuneResult, compare, tune
 
 __all__ = [
     "METHODS",
@@ -31,6 +32,7 @@ __all__ = [
     "BatchMetrics",
     "BatchResult",
     "CartesianTask",
+    "Comparison",
     "DampedLeastSquares",
     "ForwardKinematics",
     "GJMResult",
@@ -44,7 +46,10 @@ __all__ = [
     "SelectivelyDampedLS",
     "SingularValueFiltering",
     "State",
+    "TuneProgress",
+    "TuneResult",
     "WeightedDLS",
+    "compare",
     "forward_kinematics",
     "generalized_jacobian",
     "make_inverse",
@@ -54,4 +59,5 @@ __all__ = [
     "plan_batch",
     "replay",
     "table1_robot",
+    "tune",
 ]

@@ -192,7 +192,7 @@ class SelectivelyDampedLS:
     rate."""
 
     name: ClassVar[str] = "sdls"
-    gamma_max: FloatArray | float = 0.1
+    gamma_max: FloatArray | float = 1.0
 
     def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
         svd = svd if svd is not None else thin_svd(J)
@@ -292,7 +292,7 @@ METHODS: dict[str, MethodSpec] = {
     ),
     "sdls": MethodSpec(
         SelectivelyDampedLS,
-        (ParamSpec("gamma_max", "gamma_max", 0.1, 0.0, 100.0, (1e-3, 1.0), low_open=True, unit="rad/s"),),
+        (ParamSpec("gamma_max", "gamma_max", 1.0, 0.0, 100.0, (1e-3, 2.0), low_open=True, unit="rad/s"),),
         "selectively damped least squares (Buss and Kim 2005)",
     ),
     "svf": MethodSpec(

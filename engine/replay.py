@@ -25,42 +25,49 @@ ATOL = 1e-13
 
 
 def _body_jacobians(kin: Kinematics) -> FloatArray:
-    """Per-body translational and rotational Jacobians w.r.t. the joints about each body's
-    CoM: ``(n+1, 6, n)`` for a batch-of-one ``kin`` (body 0, the base, has zeros)."""
+    """Per-body Jacobians ``(n+1, 6, n)`` of CoM velocity and angular velocity w.r.t. the
+    joint rates (base fixed), for a batch-of-one ``kin``; body 0 (the base) has zeros.
+    Column j of body i is ``[k_j x (r_i - p_j); k_j]`` for ``j < i`` (joint j+1 moves body i)."""
     r = kin.body_com[0]
     p = kin.joint_positions[0]
     k = kin.joint_axes[0]
     n = p.shape[0]
+    moves = np.arange(n)[None, :] < np.arange(n + 1)[:, None]  # (n+1, n): joint j moves body i
+    lever = r[:, None, :] - p[None, :, :]  # (n+1, n, 3)
     J = np.zeros((n + 1, 6, n))
-    for i in range(1, n + 1):
-        for j in range(i):
-            J[i, :3, j] = np.cross(k[j], r[i] - p[j])
-            J[i, 3:, j] = k[j]
+    J[:, :3, :] = np.swapaxes(np.cross(np.broadcast_to(k, lever.shape), lever) * moves[..., None], 1, 2)
+    J[:, 3:, :] = np.swapaxes(np.broadcast_to(k, lever.shape) * moves[..., None], 1, 2)
     return J
 
 
 def _world_inertias(model: RobotModel, kin: Kinematics) -> FloatArray:
     A = kin.body_attitudes[0]
-    return np.einsum("bij,bjk,blk->bil", A, chain_constants(model).inertias, A)
+    inertias: FloatArray = np.einsum("bij,bjk,blk->bil", A, chain_constants(model).inertias, A)
+    return inertias
 
 
-def base_twist_from_momentum(model: RobotModel, kin: Kinematics, qd: FloatArray) -> FloatArray:
-    """Base twist ``[v_0; w_0] (6,)`` giving zero total momentum, from the 6x6 system
-    ``H_b x_b = -H_bm qd`` (angular momentum about the base CoM)."""
+def _momentum_matrices(model: RobotModel, kin: Kinematics) -> tuple[FloatArray, FloatArray]:
+    """``(H_b (6, 6), H_bm (6, n))`` with momenta ``[P; L_0] = H_b [v_0; w_0] + H_bm qd``
+    (``L_0`` about the base CoM), summed body by body."""
     m = chain_constants(model).masses
-    r0 = kin.body_com[0, 0]
+    rel = kin.body_com[0] - kin.body_com[0, 0]  # (n+1, 3) r_i - r_0
+    S = skew(rel)
     I_w = _world_inertias(model, kin)
     Jb = _body_jacobians(kin)
     H_b = np.zeros((6, 6))
-    H_bm = np.zeros((6, qd.shape[0]))
-    for i in range(m.shape[0]):
-        S = skew(kin.body_com[0, i] - r0)
-        H_b[:3, :3] += m[i] * np.eye(3)
-        H_b[:3, 3:] -= m[i] * S
-        H_b[3:, :3] += m[i] * S
-        H_b[3:, 3:] += I_w[i] - m[i] * S @ S
-        H_bm[:3] += m[i] * Jb[i, :3]
-        H_bm[3:] += I_w[i] @ Jb[i, 3:] + m[i] * S @ Jb[i, :3]
+    H_b[:3, :3] = m.sum() * np.eye(3)
+    H_b[:3, 3:] = -np.einsum("i,ijk->jk", m, S)
+    H_b[3:, :3] = -H_b[:3, 3:]
+    H_b[3:, 3:] = (I_w - m[:, None, None] * (S @ S)).sum(axis=0)
+    H_bm = np.empty((6, Jb.shape[2]))
+    H_bm[:3] = np.einsum("i,ijk->jk", m, Jb[:, :3])
+    H_bm[3:] = (I_w @ Jb[:, 3:] + m[:, None, None] * (S @ Jb[:, :3])).sum(axis=0)
+    return H_b, H_bm
+
+
+def base_twist_from_momentum(model: RobotModel, kin: Kinematics, qd: FloatArray) -> FloatArray:
+    """Base twist ``[v_0; w_0] (6,)`` giving zero total momentum: ``H_b x_b = -H_bm qd``."""
+    H_b, H_bm = _momentum_matrices(model, kin)
     return -np.linalg.solve(H_b, H_bm @ qd)
 
 
@@ -72,13 +79,10 @@ def momentum(model: RobotModel, kin: Kinematics, qd: FloatArray, base_twist: Flo
     I_w = _world_inertias(model, kin)
     Jb = _body_jacobians(kin)
     v0, w0 = base_twist[:3], base_twist[3:]
-    P = np.zeros(3)
-    L = np.zeros(3)
-    for i in range(m.shape[0]):
-        v_i = v0 + np.cross(w0, r[i] - r[0]) + Jb[i, :3] @ qd
-        w_i = w0 + Jb[i, 3:] @ qd
-        P += m[i] * v_i
-        L += I_w[i] @ w_i + m[i] * np.cross(r[i], v_i)
+    v = v0 + np.cross(w0, r - r[0]) + Jb[:, :3] @ qd  # (n+1, 3)
+    w = w0 + Jb[:, 3:] @ qd
+    P = m @ v
+    L = (I_w @ w[:, :, None])[:, :, 0].sum(axis=0) + (m[:, None] * np.cross(r, v)).sum(axis=0)
     return P, L
 
 
@@ -115,8 +119,23 @@ def replay(model: RobotModel, plan_result: PlanResult, *, rtol: float = RTOL, at
         nan = float("nan")
         empty = np.full((t.shape[0], 3), nan)
         return ReplayResult(
-            t, empty, np.full((t.shape[0], 3, 3), nan), empty, np.full((t.shape[0], 3, 3), nan),
-            nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, 0, False,
+            t,
+            empty,
+            np.full((t.shape[0], 3, 3), nan),
+            empty,
+            np.full((t.shape[0], 3, 3), nan),
+            nan,
+            nan,
+            nan,
+            nan,
+            nan,
+            nan,
+            nan,
+            nan,
+            nan,
+            nan,
+            0,
+            False,
             "the plan is not finite, nothing to replay",
         )
 

@@ -6,10 +6,12 @@ rotation matrix ``(..., 3, 3)``. Quaternions are scalar-first ``[w, x, y, z]``.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[np.floating[Any]]
 
 _SMALL_ANGLE = 1e-8
 

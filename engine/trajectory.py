@@ -127,9 +127,10 @@ class CartesianTask:
         """Sample times ``(n_steps + 1,)`` s."""
         return np.arange(self.n_steps + 1) * self.dt
 
-    def path_parameter(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        """``(s, sdot)`` of the profile at times ``t`` (s); ``s`` in [0, 1]."""
-        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+    def path_parameter(self, times: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """``(s, sdot)`` of the profile at ``times`` (s); ``s`` in [0, 1]; the ramp time is
+        ignored by the quintic profile."""
+        t: FloatArray = np.clip(np.asarray(times, dtype=float), 0.0, self.duration)
         T, ta = self.duration, self.ramp_time
         if self.profile == "quintic":
             tau = t / T

@@ -1,0 +1,1 @@
+"""The REST service (FastAPI), persistence and the job queue: see issue 4. Not built yet."""

@@ -1,0 +1,24 @@
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from engine import paper_task, table1_robot
+
+
+@pytest.fixture(scope="session")
+def robot():
+    return table1_robot()
+
+
+@pytest.fixture(scope="session")
+def task(robot):
+    return paper_task(robot)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20261122)

@@ -1,0 +1,133 @@
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from engine import tuning
+from engine.tuning import Comparison, TuneProgress, check_bounds, compare, decode, tune
+
+
+@pytest.fixture
+def bowl(monkeypatch):
+    """Replace the planner by a known two-parameter function: a bowl with its minimum at
+    (0.03, 0.2), infeasible (inf) where lambda_max > 0.15."""
+
+    def fake_evaluate_chunk(chunk):
+        lam = chunk.params["lambda_max"]
+        eps = chunk.params["epsilon"]
+        b = 0.001 + (lam - 0.03) ** 2 + (eps - 0.2) ** 2
+        b = np.where(lam > 0.15, np.inf, b)
+        return np.stack([b] * len(chunk.tasks), axis=1)
+
+    monkeypatch.setattr(tuning, "evaluate_chunk", fake_evaluate_chunk)
+
+
+def test_ga_finds_the_minimum_of_a_known_function(robot, task, bowl):
+    result = tune(robot, task, "adaptive", population=40, generations=40, seed=3, mutation_probability=0.03)
+    assert result.success
+    assert abs(result.best_params["lambda_max"] - 0.03) < 0.01
+    assert abs(result.best_params["epsilon"] - 0.2) < 0.015
+    assert result.best_objective_b < 0.001 + 3e-4
+    bests = [h.best for h in result.history]
+    assert all(a >= b for a, b in itertools.pairwise(bests))  # elitism: never worse
+    assert result.evaluations == 40 + 40 * 39  # elites are not re-evaluated
+
+
+def test_same_seed_same_result(robot, task, bowl):
+    a = tune(robot, task, "adaptive", population=12, generations=8, seed=7)
+    b = tune(robot, task, "adaptive", population=12, generations=8, seed=7)
+    c = tune(robot, task, "adaptive", population=12, generations=8, seed=8)
+    assert a.best_params == b.best_params and [h.mean for h in a.history] == [h.mean for h in b.history]
+    assert [h.mean for h in a.history] != [h.mean for h in c.history]
+
+
+def test_infeasible_everywhere_is_a_failed_result(robot, task, monkeypatch):
+    monkeypatch.setattr(tuning, "evaluate_chunk", lambda chunk: np.full((len(chunk.params["lambda"]), 1), np.inf))
+    result = tune(robot, task, "dls", population=6, generations=2, seed=0)
+    assert not result.success and "no feasible" in result.message
+    assert math.isinf(result.best_objective_b)
+    assert all(h.feasible == 0 for h in result.history)
+
+
+def test_callback_reports_and_can_stop(robot, task, bowl):
+    seen: list[TuneProgress] = []
+
+    def callback(progress):
+        seen.append(progress)
+        return progress.generation == 3
+
+    result = tune(robot, task, "adaptive", population=10, generations=20, seed=1, callback=callback)
+    assert [p.generation for p in seen] == [0, 1, 2, 3]
+    assert result.stopped and "stopped after generation 3" in result.message
+    assert seen[-1].evaluations == 10 + 3 * 9 and seen[-1].generations == 20
+    assert set(seen[-1].best_params) == {"lambda_max", "epsilon"}
+
+
+def test_pluggable_map_and_chunks_give_the_same_result(robot, task, bowl):
+    calls = []
+
+    def counting_map(fn, items):
+        items = list(items)
+        calls.append(len(items))
+        return map(fn, items)
+
+    a = tune(robot, task, "adaptive", population=10, generations=3, seed=5)
+    b = tune(robot, task, "adaptive", population=10, generations=3, seed=5, map_fn=counting_map, chunks=3)
+    assert a.best_params == b.best_params
+    assert calls and all(c == 3 for c in calls)
+
+
+def test_decode_and_bounds():
+    bounds = {"lambda_max": (0.0, 1.0), "epsilon": (0.1, 0.3)}
+    bits = np.array([[0] * 4 + [1] * 4, [1] * 4 + [0] * 4, [1, 0, 0, 0, 0, 0, 0, 1]], dtype=float)
+    out = decode(bits, bounds, 4)
+    np.testing.assert_allclose(out["lambda_max"], [0.0, 1.0, 8 / 15])
+    np.testing.assert_allclose(out["epsilon"], [0.3, 0.1, 0.1 + 0.2 / 15])
+    assert check_bounds("adaptive", None) == {"lambda_max": (1e-4, 0.2), "epsilon": (1e-4, 0.3)}
+    with pytest.raises(ValueError, match="lo must be < hi"):
+        check_bounds("adaptive", {"epsilon": [0.2, 0.1]})
+    with pytest.raises(ValueError, match=r"bounds\.epsilon"):
+        check_bounds("adaptive", {"epsilon": [0.0, 0.1]})
+    with pytest.raises(ValueError, match="unknown parameter"):
+        check_bounds("dls", {"lambda_max": [0.1, 0.2]})
+    with pytest.raises(ValueError, match="no parameters"):
+        check_bounds("inverse", None)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"population": 1}, "population"),
+        ({"generations": 0}, "generations"),
+        ({"elitism": 10}, "elitism"),
+        ({"aggregation": "mean"}, "aggregation"),
+        ({"mutation_probability": 2.0}, "mutation_probability"),
+    ],
+)
+def test_tune_validation(robot, task, kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        tune(robot, task, "adaptive", **{"population": 10, **kwargs})
+
+
+def test_paper_task_adaptive_beats_tuned_dls(robot, task):
+    """Small GA on the real planner: the tuned adaptive damping respects 6 deg/s and beats
+    the best constant damping found with the same budget."""
+    result: Comparison = compare(robot, task, population=16, generations=8, seed=11)
+    adaptive, dls = result.adaptive, result.dls
+    assert adaptive.success and dls.success
+    for metrics in adaptive.best_metrics + dls.best_metrics:
+        assert metrics.max_joint_speed_deg_s <= 6.0
+    assert adaptive.best_objective_b < dls.best_objective_b
+    assert result.improvement_percent > 0
+    assert adaptive.evaluations == 16 + 8 * 15
+
+
+def test_several_tasks(robot, task):
+    import dataclasses
+
+    slower = dataclasses.replace(task, duration=20.0, ramp_time=2.0)
+    mean = tune(robot, [task, slower], "dls", population=6, generations=2, seed=2)
+    worst = tune(robot, [task, slower], "dls", population=6, generations=2, seed=2, task_aggregation="max")
+    assert len(mean.best_metrics) == 2
+    assert worst.best_objective_b >= mean.best_objective_b
