@@ -1,10 +1,22 @@
-# Engine image: runs the paper's comparison. The service image (API + worker) comes with issue 4.
+# spacearm service image: migrates the database, then runs the API and one worker.
+# More workers: run more containers on the same database volume with `spacearm worker` as the
+# command, e.g. `docker run -v spacearm-data:/data spacearm spacearm worker` (SQLite needs them on
+# the same host and volume), or scale a compose service whose command is `spacearm worker`.
 FROM python:3.11-slim
-RUN useradd --create-home --uid 10001 spacearm
+ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 \
+    SPACEARM_DATABASE_URL=sqlite:////data/spacearm.db \
+    SPACEARM_HOST=0.0.0.0 SPACEARM_PORT=8000
+RUN useradd --create-home --uid 10001 spacearm && mkdir /data && chown spacearm /data
 WORKDIR /app
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md alembic.ini ./
 COPY engine ./engine
 COPY service ./service
-RUN pip install --no-cache-dir .
+COPY migrations ./migrations
+RUN pip install --no-cache-dir . && rm -rf /root/.cache
 USER spacearm
-CMD ["python", "-m", "engine.demo"]
+VOLUME ["/data"]
+EXPOSE 8000
+HEALTHCHECK --interval=30s --timeout=5s --start-period=20s --retries=3 \
+    CMD python -c "import os, urllib.request; urllib.request.urlopen('http://127.0.0.1:%s/healthz' % os.environ.get('SPACEARM_PORT', '8000'), timeout=4)"
+# migrate, then the API and one worker; the container stops (and is restarted) if either exits.
+CMD ["bash", "-c", "spacearm migrate || exit 1; spacearm worker & w=$!; spacearm serve & a=$!; trap 'kill -TERM $w $a 2>/dev/null' TERM INT; wait -n; kill -TERM $w $a 2>/dev/null; wait"]

@@ -1,1 +1,3 @@
-"""The REST service (FastAPI), persistence and the job queue: see issue 4. Not built yet."""
+"""The REST service: FastAPI app (``service.app``), persistence (``service.models``,
+``migrations/``), the job queue (``service.queue``) and the worker (``service.worker``).
+Run it with the ``spacearm`` console script (``service.cli``)."""

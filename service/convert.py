@@ -1,0 +1,161 @@
+"""Conversions between API bodies and the engine (degrees <-> radians, quaternions <-> matrices),
+and JSON sanitising (NaN and infinities become null)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from engine import CartesianTask, Metrics, PlanResult, ReplayResult, RobotModel
+from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
+from service.errors import ApiValidationError
+from service.schemas import TaskIn
+
+
+def clean(value: Any) -> Any:
+    """JSON-safe copy: numpy to lists, NaN/inf to None."""
+    if isinstance(value, np.ndarray):
+        return clean(value.tolist())
+    if isinstance(value, dict):
+        return {str(k): clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [clean(v) for v in value]
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    return value
+
+
+def _field_from_message(message: str) -> tuple[str, str]:
+    head, sep, rest = message.partition(": ")
+    if sep and " " not in head:
+        return head, rest
+    return "", message
+
+
+def robot_model(parameters: dict[str, Any], loc: tuple[str | int, ...] = ("body", "robot")) -> RobotModel:
+    try:
+        return RobotModel.from_dict(parameters)
+    except ValueError as exc:
+        field, msg = _field_from_message(str(exc))
+        path: list[str | int] = list(loc)
+        if field:
+            for part in field.replace("]", "").split("."):
+                name, _, index = part.partition("[")
+                path.append(name)
+                if index:
+                    path.append(int(index))
+        raise ApiValidationError(f"invalid robot parameters: {exc}", [{"loc": path, "msg": msg}]) from None
+
+
+def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("body", "task")) -> CartesianTask:
+    if len(task.q0_deg) != model.n_joints:
+        raise ApiValidationError(
+            f"task.q0_deg has {len(task.q0_deg)} joint angles but the robot has {model.n_joints} joints",
+            [{"loc": [*loc, "q0_deg"], "msg": f"expected {model.n_joints} joint angles, got {len(task.q0_deg)}"}],
+        )
+    names = {
+        "q0": "q0_deg",
+        "target_position": "target_position_m",
+        "target_attitude": "target_attitude_quaternion",
+        "duration": "duration_s",
+        "ramp_time": "ramp_time_s",
+        "dt": "dt_s",
+        "profile": "profile",
+        "joint_speed_limit": "joint_speed_limit_deg_s",
+    }
+    try:
+        attitude = quaternion_to_matrix(np.asarray(task.target_attitude_quaternion, dtype=float))
+        return CartesianTask.from_q0(
+            model,
+            np.radians(task.q0_deg),
+            np.asarray(task.target_position_m, dtype=float),
+            attitude,
+            duration=task.duration_s,
+            ramp_time=task.ramp_time_s,
+            dt=task.dt_s,
+            profile=task.profile,
+            joint_speed_limit=math.radians(task.joint_speed_limit_deg_s),
+        )
+    except ValueError as exc:
+        field, msg = _field_from_message(str(exc))
+        if "quaternion" in str(exc):
+            field = "target_attitude"
+        api_field = names.get(field, field)
+        path = [*loc, api_field] if api_field else list(loc)
+        raise ApiValidationError(f"invalid task: {api_field or 'task'}: {msg}", [{"loc": path, "msg": msg}]) from None
+
+
+def metrics_out(m: Metrics) -> dict[str, Any]:
+    return clean(
+        {
+            "objective_b": m.objective_b,
+            "position_error_max_m": m.position_error_max,
+            "position_error_rms_m": m.position_error_rms,
+            "position_error_final_m": m.position_error_final,
+            "attitude_error_max_rad": m.attitude_error_max,
+            "attitude_error_rms_rad": m.attitude_error_rms,
+            "attitude_error_final_rad": m.attitude_error_final,
+            "max_joint_speed_deg_s": m.max_joint_speed_deg_s,
+            "joint_speed_limit_deg_s": math.degrees(m.joint_speed_limit),
+            "joint_speed_limit_respected": m.joint_speed_limit_respected,
+            "min_singular_value": m.min_singular_value,
+            "time_of_min_singular_value_s": m.time_of_min_singular_value,
+            "min_abs_det_gjm": m.min_abs_det_J_g,
+            "time_of_min_abs_det_gjm_s": m.time_of_min_abs_det_J_g,
+        }
+    )
+
+
+def trajectory_out(r: PlanResult) -> dict[str, Any]:
+    return clean(
+        {
+            "t_s": r.t,
+            "joint_angles_deg": np.degrees(r.q),
+            "joint_velocities_deg_s": np.degrees(r.qd),
+            "base_position_m": r.base_position,
+            "base_attitude_quaternion": _quats(r.base_attitude),
+            "ee_position_m": r.ee_position,
+            "ee_position_desired_m": r.ee_position_desired,
+            "ee_attitude_quaternion": _quats(r.ee_attitude),
+            "ee_attitude_desired_quaternion": _quats(r.ee_attitude_desired),
+            "singular_values": r.singular_values,
+            "det_gjm": r.det_J_g,
+            "damping": r.damping,
+            "position_error_m": r.position_error,
+            "attitude_error_rad": r.attitude_error,
+        }
+    )
+
+
+def _quats(R: np.ndarray) -> np.ndarray:
+    ok = np.all(np.isfinite(R), axis=(-2, -1))
+    out = np.full(R.shape[:-2] + (4,), np.nan)
+    if np.any(ok):
+        out[ok] = matrix_to_quaternion(R[ok])
+    return out
+
+
+def replay_out(r: ReplayResult) -> dict[str, Any]:
+    return clean(
+        {
+            "success": r.success,
+            "message": r.message,
+            "path_position_error_max_m": r.path_position_error_max,
+            "path_position_error_final_m": r.path_position_error_final,
+            "path_attitude_error_max_rad": r.path_attitude_error_max,
+            "path_attitude_error_final_rad": r.path_attitude_error_final,
+            "plan_gap_position_max_m": r.plan_gap_position_max,
+            "plan_gap_attitude_max_rad": r.plan_gap_attitude_max,
+            "base_attitude_gap_max_rad": r.base_attitude_gap_max,
+            "linear_momentum_residual_max_n_s": r.linear_momentum_residual_max,
+            "angular_momentum_residual_max_n_m_s": r.angular_momentum_residual_max,
+            "com_drift_max_m": r.com_drift_max,
+        }
+    )

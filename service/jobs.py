@@ -1,0 +1,211 @@
+"""Running one tuning job: the request is rebuilt into engine objects and handed to
+:func:`engine.tuning.tune` (and the DLS baseline with the same GA settings, as
+:func:`engine.tuning.compare` does). The per-generation callback writes progress, renews the
+lease and stops the GA on cancellation, on a lost lease or on worker shutdown."""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from sqlalchemy.orm import Session
+
+from engine import RobotModel, TuneProgress, TuneResult, tune
+from engine.inverses import METHODS
+from engine.tuning import check_bounds, improvement_percent
+from service import queue
+from service.convert import build_task, clean, metrics_out, robot_model
+from service.db import Database
+from service.errors import ApiError, ApiValidationError, NotFoundError
+from service.models import Robot, TuningJob
+from service.schemas import TuningJobRequest
+
+log = logging.getLogger("spacearm.worker")
+
+
+def resolve_job_robot(session: Session, body: TuningJobRequest) -> tuple[str | None, RobotModel]:
+    if body.robot is not None:
+        return None, robot_model(body.robot.model_dump(exclude_none=True), ("body", "robot"))
+    if body.robot_id is None:
+        raise ApiValidationError(
+            "give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
+            [{"loc": ["body", "robot_id"], "msg": "robot_id or robot is required"}],
+        )
+    robot = session.get(Robot, body.robot_id)
+    if robot is None:
+        raise NotFoundError("robot", body.robot_id)
+    return robot.id, robot_model(robot.parameters)
+
+
+def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
+    """Everything the GA would reject, checked up front so a bad job is a 422, not a failure."""
+    if body.method not in METHODS or not METHODS[body.method].params:
+        tunable = [name for name, spec in METHODS.items() if spec.params]
+        raise ApiValidationError(
+            f"method: {body.method!r} cannot be tuned; choose one of {', '.join(tunable)}",
+            [{"loc": ["body", "method"], "msg": f"must be one of {', '.join(tunable)}"}],
+        )
+    try:
+        check_bounds(body.method, body.bounds)
+    except ValueError as exc:
+        raise ApiValidationError(str(exc), [{"loc": ["body", "bounds"], "msg": str(exc)}]) from None
+    if body.ga.elitism >= body.ga.population:
+        raise ApiValidationError(
+            "ga.elitism must be smaller than ga.population",
+            [{"loc": ["body", "ga", "elitism"], "msg": "must be < population"}],
+        )
+    w = body.objective.weights
+    if any(not math.isfinite(x) or x < 0 for x in w) or sum(w) <= 0:
+        raise ApiValidationError(
+            "objective.weights: two finite numbers >= 0, not both zero",
+            [{"loc": ["body", "objective", "weights"], "msg": "two finite numbers >= 0, not both zero"}],
+        )
+    for i, task in enumerate(body.tasks):
+        build_task(model, task, ("body", "tasks", i))
+
+
+def _progress(p: TuneProgress, phase: str, offset: int, total: int, evaluations_before: int) -> dict[str, Any]:
+    return clean(
+        {
+            "generation": offset + p.generation,
+            "generations": total,
+            "evaluations": evaluations_before + p.evaluations,
+            "best_objective_b": p.best_objective_b,
+            "best_params": p.best_params,
+            "phase": phase,
+        }
+    )
+
+
+class JobStoppedError(Exception):
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+def run_job(db: Database, claim: queue.Claim, lease_seconds: float, shutdown: threading.Event) -> str:
+    """Run a claimed job to its end. Returns the final status written (or ``"lost"`` /
+    ``"requeued"``)."""
+    with db.session() as s:
+        job = s.get(TuningJob, claim.job_id)
+        if job is None:
+            return "lost"
+        request = dict(job.request)
+    try:
+        body = TuningJobRequest.model_validate(request)
+        with db.session() as s:
+            _, model = resolve_job_robot(s, body)
+        tasks = [build_task(model, t, ("tasks", i)) for i, t in enumerate(body.tasks)]
+    except ApiError as exc:
+        queue.fail(db, claim, f"invalid job: {exc.detail}")
+        return "failed"
+
+    phases = [(body.method, body.bounds)] + ([("dls", None)] if body.compare_with_dls else [])
+    gens = body.ga.generations
+    total = gens * len(phases)
+    stop_reason: list[str] = []
+
+    def make_callback(phase: str, offset: int, evaluations_before: int) -> Callable[[TuneProgress], bool]:
+        def callback(p: TuneProgress) -> bool:
+            state = queue.heartbeat(db, claim, lease_seconds, _progress(p, phase, offset, total, evaluations_before))
+            if state != "ok":
+                stop_reason.append(state)
+                return True
+            if shutdown.is_set():
+                stop_reason.append("shutdown")
+                return True
+            return False
+
+        return callback
+
+    results: list[TuneResult] = []
+    evaluations = 0
+    done = threading.Event()
+
+    def keep_alive() -> None:  # renews the lease even if one generation is slow
+        while not done.wait(max(lease_seconds / 3.0, 0.05)):
+            if queue.heartbeat(db, claim, lease_seconds) == "lost":
+                return
+
+    pulse = threading.Thread(target=keep_alive, name=f"lease-{claim.job_id}", daemon=True)
+    pulse.start()
+    try:
+        for index, (method, bounds) in enumerate(phases):
+            result = tune(
+                model,
+                tasks,
+                method,
+                bounds=bounds,
+                population=body.ga.population,
+                generations=gens,
+                crossover_probability=body.ga.crossover_probability,
+                mutation_probability=body.ga.mutation_probability,
+                bits_per_gene=body.ga.bits_per_gene,
+                elitism=body.ga.elitism,
+                seed=body.ga.seed,
+                weights=(body.objective.weights[0], body.objective.weights[1]),
+                aggregation=body.objective.aggregation,
+                task_aggregation=body.objective.task_aggregation,
+                feedback_gain=body.feedback_gain,
+                callback=make_callback(method if index == 0 else "dls", index * gens, evaluations),
+            )
+            evaluations += result.evaluations
+            results.append(result)
+            if stop_reason:
+                raise JobStoppedError(stop_reason[0])
+    except JobStoppedError as stopped:
+        if stopped.reason == "cancel":
+            queue.mark_cancelled(db, claim)
+            return "cancelled"
+        if stopped.reason == "shutdown":
+            queue.requeue(db, claim)
+            return "requeued"
+        return "lost"
+    except Exception as exc:  # engine errors are permanent: record them, do not retry
+        log.exception("job %s failed", claim.job_id)
+        queue.fail(db, claim, f"{type(exc).__name__}: {exc}")
+        return "failed"
+    finally:
+        done.set()
+        pulse.join()
+
+    tuned = results[0]
+    if not tuned.success:
+        queue.fail(db, claim, tuned.message)
+        return "failed"
+    baseline = results[1] if len(results) > 1 else None
+    result_body = clean(
+        {
+            "method": tuned.method,
+            "best_params": tuned.best_params,
+            "best_objective_b": tuned.best_objective_b,
+            "best_metrics": [metrics_out(m) for m in tuned.best_metrics],
+            "history": [
+                {"generation": h.generation, "best": h.best, "mean": h.mean, "feasible": h.feasible} for h in tuned.history
+            ],
+            "evaluations": evaluations,
+            "elapsed_s": sum(r.elapsed_s for r in results),
+            "seed": tuned.seed,
+            "bounds": {k: list(v) for k, v in tuned.bounds.items()},
+            "dls_baseline": (
+                {"lambda": baseline.best_params.get("lambda"), "objective_b": baseline.best_objective_b} if baseline else None
+            ),
+            "improvement_over_dls_percent": (
+                improvement_percent(baseline.best_objective_b, tuned.best_objective_b) if baseline else None
+            ),
+        }
+    )
+    final_progress = clean(
+        {
+            "generation": total,
+            "generations": total,
+            "evaluations": evaluations,
+            "best_objective_b": tuned.best_objective_b,
+            "best_params": tuned.best_params,
+            "phase": "done",
+        }
+    )
+    return "succeeded" if queue.finish(db, claim, result_body, final_progress) else "lost"

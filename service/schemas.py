@@ -1,0 +1,356 @@
+"""Request and response bodies (pydantic). SI units; angles in degrees only where a name ends
+in ``_deg`` (or ``_deg_s``); quaternions are ``[w, x, y, z]``."""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
+from engine.trajectory import PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Quaternion = Annotated[list[float], Field(min_length=4, max_length=4, description="unit quaternion [w, x, y, z]")]
+Matrix3 = Annotated[list[Vec3], Field(min_length=3, max_length=3)]
+
+PAPER_TARGET_QUATERNION = [round(float(x), 12) for x in matrix_to_quaternion(rpy_spacedyn_to_matrix(PAPER_TARGET_RPY))]
+
+PAPER_TASK_EXAMPLE: dict[str, Any] = {
+    "q0_deg": list(PAPER_Q0_DEG),
+    "target_position_m": list(PAPER_TARGET_POSITION),
+    "target_attitude_quaternion": PAPER_TARGET_QUATERNION,
+    "duration_s": 15.0,
+    "ramp_time_s": 1.5,
+    "dt_s": 0.25,
+    "profile": "trapezoidal",
+    "joint_speed_limit_deg_s": 6.0,
+}
+
+
+# --- robots -------------------------------------------------------------------------------
+
+
+class BaseParams(BaseModel):
+    mass: float = Field(description="kg")
+    inertia: Matrix3 = Field(description="kg m^2 about the base CoM, base frame")
+    b: Vec3 = Field(description="m, base CoM to joint 1, base frame")
+
+
+class LinkParams(BaseModel):
+    name: str | None = None
+    mass: float = Field(description="kg")
+    joint_axis: Vec3 = Field(description="unit joint axis in the link frame")
+    a: Vec3 = Field(description="m, joint i to link i CoM, link frame")
+    b: Vec3 = Field(description="m, link i CoM to joint i+1 (or the end effector), link frame")
+    inertia: Matrix3 = Field(description="kg m^2 about the link CoM, link frame")
+
+
+class EndEffectorParams(BaseModel):
+    C_e: Matrix3 = Field(description="end-effector frame in the last link's frame (rotation matrix)")
+
+
+class RobotParams(BaseModel):
+    """A robot parameter set in the schema of ``robot-table1.yaml`` (SI units)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    name: str = Field(min_length=1, max_length=200)
+    base: BaseParams
+    links: list[LinkParams] = Field(min_length=1, max_length=12)
+    end_effector: EndEffectorParams | None = None
+
+
+class RobotOut(BaseModel):
+    id: str
+    name: str
+    preset: bool
+    n_joints: int
+    parameters: dict[str, Any]
+    created_at: datetime
+
+
+class RobotList(BaseModel):
+    items: list[RobotOut]
+    total: int
+
+
+class JacobianRequest(BaseModel):
+    joint_angles_deg: list[float] = Field(min_length=1, max_length=12, examples=[list(PAPER_Q0_DEG)])
+    base_position_m: Vec3 | None = Field(default=None, description="base CoM in world, m (default origin)")
+    base_attitude_quaternion: Quaternion | None = Field(default=None, description="base attitude [w, x, y, z] (default identity)")
+
+
+class JacobianOut(BaseModel):
+    gjm: list[list[float]] = Field(description="6 x n generalized Jacobian: joint rates (rad/s) to [v (m/s); w (rad/s)]")
+    singular_values: list[float]
+    determinant: float | None = Field(description="det of the GJM; null unless it is square")
+    manipulability: float
+    condition_number: float | None
+    ee_position_m: list[float]
+    ee_attitude_quaternion: list[float]
+
+
+# --- tasks --------------------------------------------------------------------------------
+
+
+class TaskIn(BaseModel):
+    """A point-to-point Cartesian task; the start pose is the forward kinematics of ``q0_deg``
+    with the base at rest at the origin."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [PAPER_TASK_EXAMPLE]})
+
+    q0_deg: list[float] = Field(min_length=1, max_length=12, description="initial joint angles, deg")
+    target_position_m: Vec3 = Field(description="target end-effector position, m")
+    target_attitude_quaternion: Quaternion = Field(description="target end-effector attitude [w, x, y, z]")
+    duration_s: float = Field(default=15.0, gt=0, le=600, description="s")
+    ramp_time_s: float = Field(default=1.5, ge=0, description="s, trapezoidal profile only; at most duration_s / 2")
+    dt_s: float = Field(default=0.25, gt=0, le=1, description="planner step, s")
+    profile: Literal["trapezoidal", "quintic"] = "trapezoidal"
+    joint_speed_limit_deg_s: float = Field(default=6.0, gt=0, description="symmetric joint speed limit, deg/s")
+
+
+class TaskPreset(BaseModel):
+    name: str
+    description: str
+    robot_id: str
+    task: TaskIn
+
+
+class TaskPresetList(BaseModel):
+    items: list[TaskPreset]
+    total: int
+
+
+# --- plans --------------------------------------------------------------------------------
+
+
+class MethodIn(BaseModel):
+    name: str = Field(default="adaptive", description="inverse: inverse, dls, adaptive, wdls, sdls, svf")
+    params: dict[str, float] = Field(default_factory=dict, description="method parameters; missing ones take defaults")
+
+
+class PlanRequest(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "robot_id": "table1",
+                    "task": PAPER_TASK_EXAMPLE,
+                    "method": {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}},
+                    "feedback_gain": 0.0,
+                    "aggregation": "max",
+                    "weights": [0.5, 0.5],
+                    "replay": True,
+                }
+            ]
+        }
+    )
+
+    robot_id: str | None = Field(default=None, description="a stored robot; or give `robot` inline")
+    robot: RobotParams | None = Field(default=None, description="inline robot parameters (replace robot_id)")
+    task: TaskIn
+    method: MethodIn = Field(default_factory=MethodIn)
+    feedback_gain: float = Field(default=0.0, ge=0, description="1/s, pose-error feedback added to the path twist")
+    aggregation: Literal["max", "rms", "final"] = "max"
+    weights: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.5, 0.5]
+    replay: bool = Field(default=True, description="re-integrate the plan with solve_ivp and report the gaps")
+
+
+class PlanMetrics(BaseModel):
+    objective_b: float | None = Field(description="objective B (m + rad weighted); null when the speed limit is broken")
+    position_error_max_m: float | None
+    position_error_rms_m: float | None
+    position_error_final_m: float | None
+    attitude_error_max_rad: float | None
+    attitude_error_rms_rad: float | None
+    attitude_error_final_rad: float | None
+    max_joint_speed_deg_s: float | None
+    joint_speed_limit_deg_s: float | None = None
+    joint_speed_limit_respected: bool
+    min_singular_value: float | None
+    time_of_min_singular_value_s: float | None
+    min_abs_det_gjm: float | None
+    time_of_min_abs_det_gjm_s: float | None
+
+
+class Trajectory(BaseModel):
+    t_s: list[float]
+    joint_angles_deg: list[list[float | None]]
+    joint_velocities_deg_s: list[list[float | None]]
+    base_position_m: list[list[float | None]]
+    base_attitude_quaternion: list[list[float | None]]
+    ee_position_m: list[list[float | None]]
+    ee_position_desired_m: list[list[float | None]]
+    ee_attitude_quaternion: list[list[float | None]]
+    ee_attitude_desired_quaternion: list[list[float | None]]
+    singular_values: list[list[float | None]]
+    det_gjm: list[float | None]
+    damping: list[list[float | None]]
+    position_error_m: list[float | None]
+    attitude_error_rad: list[float | None]
+
+
+class ReplayOut(BaseModel):
+    success: bool
+    message: str
+    path_position_error_max_m: float | None
+    path_position_error_final_m: float | None
+    path_attitude_error_max_rad: float | None
+    path_attitude_error_final_rad: float | None
+    plan_gap_position_max_m: float | None
+    plan_gap_attitude_max_rad: float | None
+    base_attitude_gap_max_rad: float | None
+    linear_momentum_residual_max_n_s: float | None
+    angular_momentum_residual_max_n_m_s: float | None
+    com_drift_max_m: float | None
+
+
+class PlanSummary(BaseModel):
+    id: str
+    robot_id: str | None
+    method: dict[str, Any]
+    success: bool
+    message: str
+    metrics: PlanMetrics
+    elapsed_s: float
+    created_at: datetime
+
+
+class PlanOut(PlanSummary):
+    trajectory: Trajectory
+    replay: ReplayOut | None
+
+
+class PlanList(BaseModel):
+    items: list[PlanSummary]
+    total: int
+
+
+# --- tuning jobs --------------------------------------------------------------------------
+
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class GASettings(BaseModel):
+    population: int = Field(default=40, ge=2, le=1000)
+    generations: int = Field(default=50, ge=1, le=1000)
+    crossover_probability: float = Field(default=0.8, ge=0, le=1)
+    mutation_probability: float = Field(default=0.02, ge=0, le=1, description="per-bit flip probability")
+    bits_per_gene: int = Field(default=16, ge=2, le=52)
+    elitism: int = Field(default=1, ge=0)
+    seed: int | None = Field(default=0, ge=0, description="null for a random seed")
+
+
+class ObjectiveSettings(BaseModel):
+    weights: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.5, 0.5]
+    aggregation: Literal["max", "rms", "final"] = "max"
+    task_aggregation: Literal["mean", "max"] = "mean"
+
+
+class TuningJobRequest(BaseModel):
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "robot_id": "table1",
+                    "tasks": [PAPER_TASK_EXAMPLE],
+                    "method": "adaptive",
+                    "bounds": {"lambda_max": [0.0001, 0.2], "epsilon": [0.0001, 0.3]},
+                    "ga": {
+                        "population": 40,
+                        "generations": 50,
+                        "crossover_probability": 0.8,
+                        "mutation_probability": 0.02,
+                        "bits_per_gene": 16,
+                        "elitism": 1,
+                        "seed": 1,
+                    },
+                    "objective": {"weights": [0.5, 0.5], "aggregation": "max"},
+                    "compare_with_dls": True,
+                }
+            ]
+        }
+    )
+
+    robot_id: str | None = Field(default=None, description="a stored robot; or give `robot` inline")
+    robot: RobotParams | None = None
+    tasks: list[TaskIn] = Field(min_length=1, max_length=20)
+    method: str = Field(default="adaptive", description="the inverse to tune (a method with parameters)")
+    bounds: dict[str, Annotated[list[float], Field(min_length=2, max_length=2)]] | None = Field(
+        None, description="search interval [lo, hi] per parameter; missing parameters take default bounds"
+    )
+    ga: GASettings = Field(default_factory=GASettings)
+    objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings)
+    feedback_gain: float = Field(default=0.0, ge=0)
+    compare_with_dls: bool = Field(default=True, description="also tune constant-damping DLS with the same GA settings")
+
+
+class JobProgress(BaseModel):
+    generation: int = 0
+    generations: int = 0
+    evaluations: int = 0
+    best_objective_b: float | None = None
+    best_params: dict[str, float] | None = None
+    phase: str | None = Field(default=None, description="which GA is running: the tuned method or the dls baseline")
+
+
+class TuningJobOut(BaseModel):
+    id: str
+    status: JobStatus
+    robot_id: str | None
+    method: str
+    progress: JobProgress
+    attempts: int
+    max_attempts: int
+    cancel_requested: bool
+    error: str | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+
+
+class TuningJobList(BaseModel):
+    items: list[TuningJobOut]
+    total: int
+
+
+class HistoryRecord(BaseModel):
+    generation: int
+    best: float | None
+    mean: float | None
+    feasible: int
+
+
+class DLSBaseline(BaseModel):
+    lambda_: float | None = Field(alias="lambda", serialization_alias="lambda")
+    objective_b: float | None
+
+    model_config = ConfigDict(populate_by_name=True)
+
+
+class TuningJobResult(BaseModel):
+    best_params: dict[str, float]
+    best_objective_b: float | None
+    best_metrics: list[PlanMetrics] = Field(description="metrics of the best parameters, one per task")
+    history: list[HistoryRecord]
+    evaluations: int
+    elapsed_s: float
+    dls_baseline: DLSBaseline | None
+    improvement_over_dls_percent: float | None
+
+
+class Health(BaseModel):
+    status: str
+    database: str | None = None
+    revision: str | None = None
+    head: str | None = None
+
+
+def finite_or_none(x: float | None) -> float | None:
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None

@@ -1,0 +1,25 @@
+"""Configuration from ``SPACEARM_*`` environment variables (pydantic-settings)."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="SPACEARM_", extra="ignore")
+
+    database_url: str = Field(default="sqlite:///./var/spacearm.db", description="SQLAlchemy URL of the database")
+    host: str = Field(default="127.0.0.1", description="address the API binds to")
+    port: int = Field(default=8000, ge=1, le=65535, description="port the API listens on")
+    worker_poll_seconds: float = Field(default=1.0, gt=0, description="how often an idle worker looks for a queued job")
+    job_lease_seconds: float = Field(default=60.0, gt=0, description="how long a job stays claimed without a heartbeat")
+    job_max_attempts: int = Field(default=3, ge=1, description="claims of one job before it is failed for good")
+    sqlite_busy_timeout_ms: int = Field(default=10_000, ge=0, description="SQLite busy timeout")
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

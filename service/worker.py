@@ -1,0 +1,60 @@
+"""The worker: polls the queue, runs one job at a time. SIGTERM/SIGINT stop it gracefully: the
+running job is stopped after its current generation and put back in the queue."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import socket
+import threading
+import uuid
+from typing import Any
+
+from service import queue
+from service.db import Database
+from service.jobs import run_job
+from service.migrate import seed_presets
+from service.settings import Settings
+
+log = logging.getLogger("spacearm.worker")
+
+
+def worker_id() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
+
+
+def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Event | None = None) -> int:
+    """Poll loop. Returns the number of jobs processed."""
+    stop = shutdown or threading.Event()
+    if shutdown is None and threading.current_thread() is threading.main_thread():
+
+        def _handle(signum: int, _frame: Any) -> None:
+            log.info("signal %s: stopping after the current generation", signum)
+            stop.set()
+
+        signal.signal(signal.SIGTERM, _handle)
+        signal.signal(signal.SIGINT, _handle)
+
+    db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
+    seed_presets(db)
+    me = worker_id()
+    log.info("worker %s polling %s every %.2f s", me, settings.database_url, settings.worker_poll_seconds)
+    processed = 0
+    try:
+        while not stop.is_set():
+            claim = queue.claim(db, me, settings.job_lease_seconds)
+            if claim is None:
+                if once:
+                    break
+                stop.wait(settings.worker_poll_seconds)
+                continue
+            log.info("job %s claimed (attempt %d)", claim.job_id, claim.attempts)
+            outcome = run_job(db, claim, settings.job_lease_seconds, stop)
+            log.info("job %s: %s", claim.job_id, outcome)
+            processed += 1
+            if once:
+                break
+    finally:
+        db.dispose()
+    return processed

@@ -1,0 +1,205 @@
+"""Every endpoint over real HTTP against a uvicorn subprocess and a SQLite file."""
+
+from __future__ import annotations
+
+import copy
+import math
+import threading
+import time
+
+import httpx
+import pytest
+
+from tests.service.conftest import PAPER_TASK, Stack
+
+PROBLEM = "application/problem+json"
+
+
+def _problem(r: httpx.Response, status: int) -> dict:
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith(PROBLEM)
+    body = r.json()
+    assert {"type", "title", "status", "detail"} <= set(body)
+    assert body["status"] == status
+    return body
+
+
+def test_health_and_ready(client: httpx.Client) -> None:
+    assert client.get("/healthz").json()["status"] == "ok"
+    ready = client.get("/readyz")
+    assert ready.status_code == 200
+    assert ready.json()["revision"] == ready.json()["head"] == "0001"
+
+
+def test_robots_crud(client: httpx.Client) -> None:
+    listing = client.get("/v1/robots", params={"limit": 10}).json()
+    assert listing["total"] >= 1
+    preset = client.get("/v1/robots/table1").json()
+    assert preset["preset"] is True and preset["n_joints"] == 6
+    params = copy.deepcopy(preset["parameters"])
+    params["name"] = "my-arm"
+    params["base"]["mass"] = 500.0
+    r = client.post("/v1/robots", json=params)
+    assert r.status_code == 201, r.text
+    robot = r.json()
+    assert r.headers["location"] == f"/v1/robots/{robot['id']}"
+    assert client.get(r.headers["location"]).json()["parameters"]["base"]["mass"] == 500.0
+    assert client.get("/v1/robots", params={"limit": 1, "offset": 0}).json()["items"][0]["id"] == "table1"
+    assert client.delete(f"/v1/robots/{robot['id']}").status_code == 204
+    _problem(client.get(f"/v1/robots/{robot['id']}"), 404)
+    _problem(client.delete(f"/v1/robots/{robot['id']}"), 404)
+    _problem(client.delete("/v1/robots/table1"), 409)
+    assert client.get("/v1/robots/table1").status_code == 200
+
+
+def test_robot_validation_names_the_field(client: httpx.Client) -> None:
+    params = copy.deepcopy(client.get("/v1/robots/table1").json()["parameters"])
+    params["links"][2]["mass"] = -1.0
+    body = _problem(client.post("/v1/robots", json=params), 422)
+    assert body["errors"][0]["field"].startswith("body.links[2].mass"), body
+    del params["base"]
+    body = _problem(client.post("/v1/robots", json=params), 422)
+    assert any(e["field"] == "body.base" for e in body["errors"]), body
+
+
+def test_jacobian(client: httpx.Client) -> None:
+    r = client.post("/v1/robots/table1/jacobian", json={"joint_angles_deg": PAPER_TASK["q0_deg"]})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert len(body["gjm"]) == 6 and len(body["gjm"][0]) == 6
+    assert body["determinant"] is not None
+    assert math.isclose(body["manipulability"], abs(body["determinant"]), rel_tol=1e-6)
+    assert body["ee_position_m"] == pytest.approx([1.3717, -0.0763, 0.6415], abs=1e-3)
+    assert len(body["ee_attitude_quaternion"]) == 4
+    moved = client.post(
+        "/v1/robots/table1/jacobian",
+        json={
+            "joint_angles_deg": PAPER_TASK["q0_deg"],
+            "base_position_m": [1.0, 0.0, 0.0],
+            "base_attitude_quaternion": [1.0, 0.0, 0.0, 0.0],
+        },
+    ).json()
+    assert math.isclose(moved["ee_position_m"][0], body["ee_position_m"][0] + 1.0, abs_tol=1e-9)
+    _problem(client.post("/v1/robots/table1/jacobian", json={"joint_angles_deg": [1, 2, 3]}), 422)
+    _problem(client.post("/v1/robots/nope/jacobian", json={"joint_angles_deg": PAPER_TASK["q0_deg"]}), 404)
+
+
+def test_task_presets(client: httpx.Client) -> None:
+    listing = client.get("/v1/task-presets").json()
+    assert "paper-line" in [p["name"] for p in listing["items"]]
+    preset = client.get("/v1/task-presets/paper-line").json()
+    assert preset["task"] == PAPER_TASK
+    _problem(client.get("/v1/task-presets/nope"), 404)
+
+
+def test_plan_create_get_list(client: httpx.Client) -> None:
+    body = {
+        "robot_id": "table1",
+        "task": PAPER_TASK,
+        "method": {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}},
+        "feedback_gain": 0.0,
+        "aggregation": "max",
+        "weights": [0.5, 0.5],
+        "replay": True,
+    }
+    r = client.post("/v1/plans", json=body)
+    assert r.status_code == 201, r.text
+    plan = r.json()
+    assert r.headers["location"] == f"/v1/plans/{plan['id']}"
+    assert plan["robot_id"] == "table1" and plan["method"]["name"] == "adaptive"
+    m = plan["metrics"]
+    assert m["joint_speed_limit_respected"] is True and m["objective_b"] > 0
+    assert m["max_joint_speed_deg_s"] <= 6.0 + 1e-9
+    assert m["min_abs_det_gjm"] is not None and m["time_of_min_abs_det_gjm_s"] is not None
+    traj = plan["trajectory"]
+    assert len(traj["t_s"]) == 61 and len(traj["joint_angles_deg"][0]) == 6
+    assert traj["joint_angles_deg"][0] == pytest.approx(PAPER_TASK["q0_deg"], abs=1e-9)
+    assert len(traj["ee_attitude_quaternion"][0]) == 4 and len(traj["base_attitude_quaternion"][0]) == 4
+    assert plan["replay"]["plan_gap_position_max_m"] < 0.01
+    assert plan["replay"]["angular_momentum_residual_max_n_m_s"] < 1e-6
+
+    stored = client.get(f"/v1/plans/{plan['id']}").json()
+    assert stored["metrics"] == m and stored["trajectory"]["t_s"] == traj["t_s"]
+    listing = client.get("/v1/plans").json()
+    assert listing["total"] >= 1
+    assert plan["id"] in [p["id"] for p in listing["items"]]
+    assert all("trajectory" not in p for p in listing["items"])
+    _problem(client.get("/v1/plans/nope"), 404)
+
+
+def test_plan_variants_and_errors(client: httpx.Client) -> None:
+    robot = client.get("/v1/robots/table1").json()["parameters"]
+    inline = client.post("/v1/plans", json={"robot": robot, "task": PAPER_TASK, "method": {"name": "inverse"}, "replay": False})
+    assert inline.status_code == 201, inline.text
+    plain = inline.json()
+    assert plain["robot_id"] is None and plain["replay"] is None
+    # the plain inverse breaks the speed limit near the singularity: B is null
+    assert plain["metrics"]["joint_speed_limit_respected"] is False
+    assert plain["metrics"]["objective_b"] is None and plain["success"] is False
+
+    _problem(client.post("/v1/plans", json={"robot_id": "nope", "task": PAPER_TASK}), 404)
+    bad = _problem(client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK, "method": {"name": "magic"}}), 422)
+    assert bad["errors"][0]["field"] == "body.method.name"
+    bad = _problem(
+        client.post(
+            "/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK, "method": {"name": "dls", "params": {"lambda": -1}}}
+        ),
+        422,
+    )
+    assert "lambda" in bad["detail"]
+    bad = _problem(client.post("/v1/plans", json={"robot_id": "table1", "task": {**PAPER_TASK, "q0_deg": [0, 0]}}), 422)
+    assert bad["errors"][0]["field"] == "body.task.q0_deg"
+    bad = _problem(client.post("/v1/plans", json={"robot_id": "table1", "task": {**PAPER_TASK, "ramp_time_s": 9.0}}), 422)
+    assert bad["errors"][0]["field"] == "body.task.ramp_time_s"
+    bad = _problem(client.post("/v1/plans", json={"robot_id": "table1", "task": {**PAPER_TASK, "profile": "cubic"}}), 422)
+    assert bad["errors"][0]["field"] == "body.task.profile"
+    _problem(client.post("/v1/plans", json={"task": PAPER_TASK}), 422)
+
+
+def test_long_plan_does_not_block_other_requests(client: httpx.Client, stack: Stack) -> None:
+    fine = {"robot_id": "table1", "task": {**PAPER_TASK, "dt_s": 0.01}, "replay": True}
+    done = threading.Event()
+
+    def long_plan() -> None:
+        with stack.client() as c:
+            assert c.post("/v1/plans", json=fine).status_code == 201
+        done.set()
+
+    t = threading.Thread(target=long_plan)
+    start = time.monotonic()
+    t.start()
+    time.sleep(0.2)
+    assert client.get("/healthz").status_code == 200
+    quick = time.monotonic() - start
+    t.join(60)
+    assert done.is_set()
+    assert quick < time.monotonic() - start  # health answered before the long plan finished
+
+
+def test_openapi_contract(client: httpx.Client) -> None:
+    doc = client.get("/openapi.json").json()
+    ops = {op["operationId"]: (path, method, op) for path, item in doc["paths"].items() for method, op in item.items()}
+    expected = {
+        "list_robots": ("/v1/robots", "get", "robots"),
+        "create_robot": ("/v1/robots", "post", "robots"),
+        "get_robot": ("/v1/robots/{robot_id}", "get", "robots"),
+        "delete_robot": ("/v1/robots/{robot_id}", "delete", "robots"),
+        "compute_jacobian": ("/v1/robots/{robot_id}/jacobian", "post", "robots"),
+        "list_task_presets": ("/v1/task-presets", "get", "tasks"),
+        "get_task_preset": ("/v1/task-presets/{name}", "get", "tasks"),
+        "create_plan": ("/v1/plans", "post", "plans"),
+        "get_plan": ("/v1/plans/{plan_id}", "get", "plans"),
+        "list_plans": ("/v1/plans", "get", "plans"),
+        "create_tuning_job": ("/v1/tuning-jobs", "post", "tuning"),
+        "list_tuning_jobs": ("/v1/tuning-jobs", "get", "tuning"),
+        "get_tuning_job": ("/v1/tuning-jobs/{job_id}", "get", "tuning"),
+        "get_tuning_job_result": ("/v1/tuning-jobs/{job_id}/result", "get", "tuning"),
+        "cancel_tuning_job": ("/v1/tuning-jobs/{job_id}/cancel", "post", "tuning"),
+    }
+    for op_id, (path, method, tag) in expected.items():
+        assert op_id in ops, op_id
+        assert ops[op_id][:2] == (path, method)
+        assert ops[op_id][2]["tags"] == [tag]
+    assert "application/problem+json" in ops["get_plan"][2]["responses"]["404"]["content"]
+    assert "409" in ops["get_tuning_job_result"][2]["responses"]
+    assert doc["components"]["schemas"]["TaskIn"]["examples"][0]["q0_deg"] == PAPER_TASK["q0_deg"]
