@@ -11,11 +11,13 @@ use the rotation angle, which is frame independent.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Literal
 
 import numpy as np
 
+from engine.errors import ParameterError
 from engine.spatial import FloatArray
 
 Aggregation = Literal["max", "rms", "final"]
@@ -97,13 +99,13 @@ def aggregate(errors: FloatArray, aggregation: str) -> FloatArray:
         return np.sqrt(np.mean(errors**2, axis=-1))
     if aggregation == "final":
         return errors[..., -1]
-    raise ValueError(f"aggregation: must be one of {', '.join(AGGREGATIONS)}")
+    raise ParameterError("aggregation", f"must be one of {', '.join(AGGREGATIONS)}")
 
 
-def check_weights(weights: tuple[float, float]) -> tuple[float, float]:
+def check_weights(weights: Sequence[float]) -> tuple[float, float]:
     w = tuple(float(x) for x in weights)
     if len(w) != 2 or not all(math.isfinite(x) and x >= 0.0 for x in w) or sum(w) <= 0.0:
-        raise ValueError("weights: expected two finite numbers >= 0, not both zero")
+        raise ParameterError("weights", "expected two finite numbers >= 0, not both zero")
     return (w[0], w[1])
 
 
@@ -135,7 +137,7 @@ def compute_metrics(
     """Metrics of ``B`` plans from per-sample series ``(B, N+1)`` and per-joint peak speeds
     ``joint_speed_peak (B, n)`` (rad/s, absolute)."""
     if aggregation not in AGGREGATIONS:
-        raise ValueError(f"aggregation: must be one of {', '.join(AGGREGATIONS)}")
+        raise ParameterError("aggregation", f"must be one of {', '.join(AGGREGATIONS)}")
     finite = (
         np.all(np.isfinite(position_errors), axis=-1)
         & np.all(np.isfinite(attitude_errors), axis=-1)

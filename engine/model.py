@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from engine.errors import ParameterError
 from engine.spatial import FloatArray, is_rotation
 
 MAX_JOINTS = 12
@@ -31,11 +32,11 @@ def _array(value: Any, shape: tuple[int, ...], field: str) -> FloatArray:
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{field}: expected numbers of shape {shape}") from exc
+        raise ParameterError(field, f"expected numbers of shape {shape}") from exc
     if arr.shape != shape:
-        raise ValueError(f"{field}: expected shape {shape}, got {arr.shape}")
+        raise ParameterError(field, f"expected shape {shape}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{field}: every number must be finite")
+        raise ParameterError(field, "every number must be finite")
     arr.setflags(write=False)
     return arr
 
@@ -44,9 +45,9 @@ def _mass(value: Any, field: str) -> float:
     try:
         mass = float(value)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{field}: expected a number") from exc
+        raise ParameterError(field, "expected a number") from exc
     if not math.isfinite(mass) or mass <= 0.0:
-        raise ValueError(f"{field}: mass must be finite and > 0, got {value!r}")
+        raise ParameterError(field, f"mass must be finite and > 0, got {value!r}")
     return mass
 
 
@@ -54,14 +55,14 @@ def _inertia(value: Any, field: str) -> FloatArray:
     inertia = _array(value, (3, 3), field)
     scale = max(float(np.max(np.abs(inertia))), 1e-300)
     if not np.allclose(inertia, inertia.T, rtol=0.0, atol=1e-9 * scale):
-        raise ValueError(f"{field}: inertia tensor must be symmetric")
+        raise ParameterError(field, "inertia tensor must be symmetric")
     principal = np.linalg.eigvalsh(inertia)
     if principal[0] <= 1e-12 * scale:
-        raise ValueError(f"{field}: inertia tensor must be positive definite")
+        raise ParameterError(field, "inertia tensor must be positive definite")
     # Physical inertia: each principal moment at most the sum of the other two.
     p1, p2, p3 = principal
     if p3 > p1 + p2 + 1e-9 * scale:
-        raise ValueError(f"{field}: principal moments {principal.tolist()} violate the triangle inequality")
+        raise ParameterError(field, f"principal moments {principal.tolist()} violate the triangle inequality")
     return inertia
 
 
@@ -69,7 +70,7 @@ def _axis(value: Any, field: str) -> FloatArray:
     axis = np.array(_array(value, (3,), field))
     norm = float(np.linalg.norm(axis))
     if norm < 1e-9:
-        raise ValueError(f"{field}: joint axis must be non-zero")
+        raise ParameterError(field, "joint axis must be non-zero")
     axis = axis / norm
     axis.setflags(write=False)
     return axis
@@ -147,13 +148,13 @@ class RobotModel:
         Raises ``ValueError`` naming the offending field (e.g. ``links[2].inertia``).
         """
         if not isinstance(data, dict):
-            raise ValueError("robot: expected an object")
+            raise ParameterError("robot", "expected an object")
         name = data.get("name", "robot")
         if not isinstance(name, str) or not name.strip():
-            raise ValueError("name: expected a non-empty string")
+            raise ParameterError("name", "expected a non-empty string")
         base_data = data.get("base")
         if not isinstance(base_data, dict):
-            raise ValueError("base: expected an object with mass, inertia and b")
+            raise ParameterError("base", "expected an object with mass, inertia and b")
         base = Base(
             mass=_mass(base_data.get("mass"), "base.mass"),
             inertia=_inertia(base_data.get("inertia"), "base.inertia"),
@@ -161,15 +162,15 @@ class RobotModel:
         )
         links_data = data.get("links")
         if not isinstance(links_data, list) or not 1 <= len(links_data) <= MAX_JOINTS:
-            raise ValueError(f"links: expected a list of 1 to {MAX_JOINTS} links")
+            raise ParameterError("links", f"expected a list of 1 to {MAX_JOINTS} links")
         links = []
         for i, ld in enumerate(links_data):
             field = f"links[{i}]"
             if not isinstance(ld, dict):
-                raise ValueError(f"{field}: expected an object")
+                raise ParameterError(field, "expected an object")
             link_name = ld.get("name", f"link{i + 1}")
             if not isinstance(link_name, str):
-                raise ValueError(f"{field}.name: expected a string")
+                raise ParameterError(f"{field}.name", "expected a string")
             links.append(
                 Link(
                     name=link_name,
@@ -182,10 +183,10 @@ class RobotModel:
             )
         ee = data.get("end_effector", {"C_e": np.eye(3).tolist()})
         if not isinstance(ee, dict):
-            raise ValueError("end_effector: expected an object with C_e")
+            raise ParameterError("end_effector", "expected an object with C_e")
         C_e = _array(ee.get("C_e", np.eye(3).tolist()), (3, 3), "end_effector.C_e")
         if not is_rotation(C_e):
-            raise ValueError("end_effector.C_e: must be a rotation matrix (orthonormal, det +1)")
+            raise ParameterError("end_effector.C_e", "must be a rotation matrix (orthonormal, det +1)")
         return cls(name=name, base=base, links=tuple(links), C_e=C_e)
 
     def to_dict(self) -> dict[str, Any]:

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from engine.errors import ParameterError
 from engine.inverses import SVD, RobustInverse, inverse_params, make_inverse, method_spec, thin_svd
 from engine.jacobian import gjm_batch
 from engine.kinematics import kinematics_about_com, kinematics_batch, system_com
@@ -59,9 +60,9 @@ def _simulate(
 ) -> _Trace:
     n = model.n_joints
     if task.q0.shape != (n,):
-        raise ValueError(f"q0: task has {task.q0.shape[0]} joint angles, robot has {n} joints")
+        raise ParameterError("q0", f"task has {task.q0.shape[0]} joint angles, robot has {n} joints")
     if not math.isfinite(feedback_gain) or feedback_gain < 0.0:
-        raise ValueError("feedback_gain: must be finite and >= 0")
+        raise ParameterError("feedback_gain", "must be finite and >= 0")
     N = task.n_steps
     m = min(6, n)
     dt = task.dt
@@ -270,17 +271,17 @@ def _stack_params(method: str, params: ParamSets) -> dict[str, FloatArray]:
     else:
         rows = list(params)
         if not rows:
-            raise ValueError("params: at least one parameter set is needed")
+            raise ParameterError("params", "at least one parameter set is needed")
         names = {p.name for p in spec.params}
         columns = {}
         for name in names:
             columns[name] = np.array([row.get(name, _default(method, name)) for row in rows], dtype=float)
         extra = set().union(*(set(r) for r in rows)) - names
         if extra:
-            raise ValueError(f"{method}: unknown parameter(s) {', '.join(sorted(extra))}")
+            raise ParameterError(method, f"unknown parameter(s) {', '.join(sorted(extra))}")
     sizes = {v.shape for v in columns.values()}
     if len(sizes) > 1 or any(len(s) != 1 for s in sizes):
-        raise ValueError("params: every parameter needs the same number of values (one per plan)")
+        raise ParameterError("params", "every parameter needs the same number of values (one per plan)")
     return columns
 
 
@@ -288,7 +289,7 @@ def _default(method: str, name: str) -> float:
     for p in method_spec(method).params:
         if p.name == name:
             return p.default
-    raise ValueError(f"{method}: unknown parameter {name!r}")
+    raise ParameterError(method, f"unknown parameter {name!r}")
 
 
 def plan_batch(

@@ -18,6 +18,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
+from engine.errors import ParameterError
 from engine.kinematics import as_state, forward_kinematics
 from engine.model import RobotModel, table1_robot
 from engine.spatial import FloatArray, exp_so3, is_rotation, log_so3, rpy_spacedyn_to_matrix
@@ -36,9 +37,9 @@ PAPER_TARGET_RPY = (-3.16, -0.26, -3.14)
 def _finite(value: ArrayLike, shape: tuple[int, ...], name: str) -> FloatArray:
     arr = np.array(value, dtype=float)
     if arr.shape != shape:
-        raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
+        raise ParameterError(name, f"expected shape {shape}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: every number must be finite")
+        raise ParameterError(name, "every number must be finite")
     arr.setflags(write=False)
     return arr
 
@@ -63,7 +64,7 @@ class CartesianTask:
     def __post_init__(self) -> None:
         q0 = np.array(self.q0, dtype=float).reshape(-1)
         if q0.size == 0 or not np.all(np.isfinite(q0)):
-            raise ValueError("q0: expected finite joint angles")
+            raise ParameterError("q0", "expected finite joint angles")
         q0.setflags(write=False)
         object.__setattr__(self, "q0", q0)
         for name in ("start_position", "target_position"):
@@ -71,25 +72,25 @@ class CartesianTask:
         for name in ("start_attitude", "target_attitude"):
             att = _finite(getattr(self, name), (3, 3), name)
             if not is_rotation(att):
-                raise ValueError(f"{name}: must be a rotation matrix")
+                raise ParameterError(name, "must be a rotation matrix")
             object.__setattr__(self, name, att)
         for name in ("duration", "ramp_time", "dt", "joint_speed_limit"):
             value = float(getattr(self, name))
             if not math.isfinite(value):
-                raise ValueError(f"{name}: must be finite")
+                raise ParameterError(name, "must be finite")
             object.__setattr__(self, name, value)
         if not 0.0 < self.duration <= MAX_DURATION_S:
-            raise ValueError(f"duration: must be in (0, {MAX_DURATION_S:g}] s")
+            raise ParameterError("duration", f"must be in (0, {MAX_DURATION_S:g}] s")
         if not 0.0 < self.dt <= 1.0:
-            raise ValueError("dt: must be in (0, 1] s")
+            raise ParameterError("dt", "must be in (0, 1] s")
         if not 0.0 <= self.ramp_time <= self.duration / 2.0:
-            raise ValueError("ramp_time: must be in [0, duration / 2]")
+            raise ParameterError("ramp_time", "must be in [0, duration / 2]")
         if self.profile not in PROFILES:
-            raise ValueError(f"profile: must be one of {', '.join(PROFILES)}")
+            raise ParameterError("profile", f"must be one of {', '.join(PROFILES)}")
         if self.joint_speed_limit <= 0.0:
-            raise ValueError("joint_speed_limit: must be > 0")
+            raise ParameterError("joint_speed_limit", "must be > 0")
         if self.n_steps > MAX_STEPS:
-            raise ValueError(f"dt: duration / dt gives {self.n_steps} steps, at most {MAX_STEPS} allowed")
+            raise ParameterError("dt", f"duration / dt gives {self.n_steps} steps, at most {MAX_STEPS} allowed")
         object.__setattr__(self, "_phi", log_so3(self.target_attitude @ self.start_attitude.T))
 
     @classmethod

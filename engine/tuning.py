@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from deap import base, creator, tools
 
+from engine.errors import ParameterError
 from engine.inverses import check_param, method_spec
 from engine.metrics import AGGREGATIONS, Metrics, check_weights
 from engine.model import RobotModel
@@ -120,21 +121,23 @@ def check_bounds(method: str, bounds: Mapping[str, Sequence[float]] | None) -> d
     range. Missing parameters take their default bounds."""
     spec = method_spec(method)
     if not spec.params:
-        raise ValueError(f"bounds: method {method!r} has no parameters to tune")
+        raise ParameterError("bounds", f"method {method!r} has no parameters to tune")
     known = {p.name: p for p in spec.params}
     bounds = dict(bounds or {})
     unknown = set(bounds) - set(known)
     if unknown:
-        raise ValueError(f"bounds: unknown parameter(s) {', '.join(sorted(unknown))} for {method}; valid: {', '.join(known)}")
+        raise ParameterError(
+            "bounds", f"unknown parameter(s) {', '.join(sorted(unknown))} for {method}; valid: {', '.join(known)}"
+        )
     out: dict[str, tuple[float, float]] = {}
     for name, p in known.items():
         pair = bounds.get(name, p.tune_bounds)
         if len(pair) != 2:
-            raise ValueError(f"bounds.{name}: expected [lo, hi]")
+            raise ParameterError(f"bounds.{name}", "expected [lo, hi]")
         lo, hi = (float(x) for x in pair)
         check_param(p, np.array([lo, hi]), f"bounds.{name}")
         if not lo < hi:
-            raise ValueError(f"bounds.{name}: lo must be < hi, got [{lo}, {hi}]")
+            raise ParameterError(f"bounds.{name}", f"lo must be < hi, got [{lo}, {hi}]")
         out[name] = (lo, hi)
     return out
 
@@ -184,8 +187,7 @@ def _evaluate(map_fn: MapFn, chunks: int, base_chunk: _Chunk, params: dict[str, 
     size = next(iter(params.values())).shape[0]
     edges = np.linspace(0, size, min(chunks, size) + 1).astype(int)
     parts = [
-        _Chunk(**{**base_chunk.__dict__, "params": {k: v[a:b] for k, v in params.items()}})
-        for a, b in itertools.pairwise(edges)
+        _Chunk(**{**base_chunk.__dict__, "params": {k: v[a:b] for k, v in params.items()}}) for a, b in itertools.pairwise(edges)
     ]
     per_task = np.concatenate([np.asarray(r) for r in map_fn(evaluate_chunk, parts)], axis=0)
     if task_aggregation == "max":
@@ -228,29 +230,29 @@ def tune(
     """
     task_list = (tasks,) if isinstance(tasks, CartesianTask) else tuple(tasks)
     if not task_list:
-        raise ValueError("tasks: at least one task is needed")
+        raise ParameterError("tasks", "at least one task is needed")
     for i, task in enumerate(task_list):
         if task.q0.shape != (model.n_joints,):
-            raise ValueError(f"tasks[{i}].q0: expected {model.n_joints} joint angles, got {task.q0.shape[0]}")
+            raise ParameterError(f"tasks[{i}].q0", f"expected {model.n_joints} joint angles, got {task.q0.shape[0]}")
     search = check_bounds(method, bounds)
     if not 2 <= population <= MAX_POPULATION:
-        raise ValueError(f"population: must be in [2, {MAX_POPULATION}]")
+        raise ParameterError("population", f"must be in [2, {MAX_POPULATION}]")
     if not 1 <= generations <= MAX_GENERATIONS:
-        raise ValueError(f"generations: must be in [1, {MAX_GENERATIONS}]")
+        raise ParameterError("generations", f"must be in [1, {MAX_GENERATIONS}]")
     if not 0.0 <= crossover_probability <= 1.0:
-        raise ValueError("crossover_probability: must be in [0, 1]")
+        raise ParameterError("crossover_probability", "must be in [0, 1]")
     if not 0.0 <= mutation_probability <= 1.0:
-        raise ValueError("mutation_probability: must be in [0, 1]")
+        raise ParameterError("mutation_probability", "must be in [0, 1]")
     if not 2 <= bits_per_gene <= 52:
-        raise ValueError("bits_per_gene: must be in [2, 52]")
+        raise ParameterError("bits_per_gene", "must be in [2, 52]")
     if not 0 <= elitism < population:
-        raise ValueError("elitism: must be in [0, population - 1]")
+        raise ParameterError("elitism", "must be in [0, population - 1]")
     if aggregation not in AGGREGATIONS:
-        raise ValueError(f"aggregation: must be one of {', '.join(AGGREGATIONS)}")
+        raise ParameterError("aggregation", f"must be one of {', '.join(AGGREGATIONS)}")
     if task_aggregation not in TASK_AGGREGATIONS:
-        raise ValueError(f"task_aggregation: must be one of {', '.join(TASK_AGGREGATIONS)}")
+        raise ParameterError("task_aggregation", f"must be one of {', '.join(TASK_AGGREGATIONS)}")
     if chunks < 1:
-        raise ValueError("chunks: must be >= 1")
+        raise ParameterError("chunks", "must be >= 1")
     weights = check_weights(weights)
 
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)

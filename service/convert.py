@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from engine import CartesianTask, Metrics, PlanResult, ReplayResult, RobotModel
+from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from service.errors import ApiValidationError
 from service.schemas import TaskIn
@@ -32,26 +33,23 @@ def clean(value: Any) -> Any:
     return value
 
 
-def _field_from_message(message: str) -> tuple[str, str]:
-    head, sep, rest = message.partition(": ")
-    if sep and " " not in head:
-        return head, rest
-    return "", message
+def field_path(field: str) -> list[str | int]:
+    """``links[2].inertia`` -> ``["links", 2, "inertia"]``."""
+    path: list[str | int] = []
+    for part in field.replace("]", "").split("."):
+        name, _, index = part.partition("[")
+        path.append(name)
+        if index:
+            path.append(int(index))
+    return path
 
 
 def robot_model(parameters: dict[str, Any], loc: tuple[str | int, ...] = ("body", "robot")) -> RobotModel:
     try:
         return RobotModel.from_dict(parameters)
-    except ValueError as exc:
-        field, msg = _field_from_message(str(exc))
-        path: list[str | int] = list(loc)
-        if field:
-            for part in field.replace("]", "").split("."):
-                name, _, index = part.partition("[")
-                path.append(name)
-                if index:
-                    path.append(int(index))
-        raise ApiValidationError(f"invalid robot parameters: {exc}", [{"loc": path, "msg": msg}]) from None
+    except ParameterError as exc:
+        path = [*loc, *field_path(exc.field)]
+        raise ApiValidationError(f"invalid robot parameters: {exc}", [{"loc": path, "msg": exc.reason}]) from None
 
 
 def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("body", "task")) -> CartesianTask:
@@ -72,6 +70,10 @@ def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("b
     }
     try:
         attitude = quaternion_to_matrix(np.asarray(task.target_attitude_quaternion, dtype=float))
+    except ValueError as exc:
+        path = [*loc, "target_attitude_quaternion"]
+        raise ApiValidationError(f"invalid task: target_attitude_quaternion: {exc}", [{"loc": path, "msg": str(exc)}]) from None
+    try:
         return CartesianTask.from_q0(
             model,
             np.radians(task.q0_deg),
@@ -83,13 +85,10 @@ def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("b
             profile=task.profile,
             joint_speed_limit=math.radians(task.joint_speed_limit_deg_s),
         )
-    except ValueError as exc:
-        field, msg = _field_from_message(str(exc))
-        if "quaternion" in str(exc):
-            field = "target_attitude"
-        api_field = names.get(field, field)
-        path = [*loc, api_field] if api_field else list(loc)
-        raise ApiValidationError(f"invalid task: {api_field or 'task'}: {msg}", [{"loc": path, "msg": msg}]) from None
+    except ParameterError as exc:
+        api_field = names.get(exc.field, exc.field)
+        path = [*loc, api_field]
+        raise ApiValidationError(f"invalid task: {api_field}: {exc.reason}", [{"loc": path, "msg": exc.reason}]) from None
 
 
 def metrics_out(m: Metrics) -> dict[str, Any]:

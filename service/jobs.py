@@ -6,7 +6,6 @@ lease and stops the GA on cancellation, on a lost lease or on worker shutdown.""
 from __future__ import annotations
 
 import logging
-import math
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -14,10 +13,12 @@ from typing import Any
 from sqlalchemy.orm import Session
 
 from engine import RobotModel, TuneProgress, TuneResult, tune
+from engine.errors import ParameterError
 from engine.inverses import METHODS
+from engine.metrics import check_weights
 from engine.tuning import check_bounds, improvement_percent
 from service import queue
-from service.convert import build_task, clean, metrics_out, robot_model
+from service.convert import build_task, clean, field_path, metrics_out, robot_model
 from service.db import Database
 from service.errors import ApiError, ApiValidationError, NotFoundError
 from service.models import Robot, TuningJob
@@ -50,18 +51,16 @@ def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
         )
     try:
         check_bounds(body.method, body.bounds)
-    except ValueError as exc:
-        raise ApiValidationError(str(exc), [{"loc": ["body", "bounds"], "msg": str(exc)}]) from None
+        check_weights(body.objective.weights)
+    except ParameterError as exc:
+        loc = ["body", *field_path(exc.field)]
+        if exc.field == "weights":
+            loc = ["body", "objective", "weights"]
+        raise ApiValidationError(str(exc), [{"loc": loc, "msg": exc.reason}]) from None
     if body.ga.elitism >= body.ga.population:
         raise ApiValidationError(
             "ga.elitism must be smaller than ga.population",
             [{"loc": ["body", "ga", "elitism"], "msg": "must be < population"}],
-        )
-    w = body.objective.weights
-    if any(not math.isfinite(x) or x < 0 for x in w) or sum(w) <= 0:
-        raise ApiValidationError(
-            "objective.weights: two finite numbers >= 0, not both zero",
-            [{"loc": ["body", "objective", "weights"], "msg": "two finite numbers >= 0, not both zero"}],
         )
     for i, task in enumerate(body.tasks):
         build_task(model, task, ("body", "tasks", i))

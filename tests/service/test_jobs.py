@@ -79,7 +79,7 @@ def test_job_validation_and_idempotency(client: httpx.Client) -> None:
     assert client.get("/v1/tuning-jobs/nope").status_code == 404
     assert client.get("/v1/tuning-jobs/nope/result").status_code == 404
     bad = client.post("/v1/tuning-jobs", json={**job_body(), "bounds": {"lambda_max": [0.2, 0.1]}})
-    assert bad.status_code == 422 and bad.json()["errors"][0]["field"] == "body.bounds"
+    assert bad.status_code == 422 and bad.json()["errors"][0]["field"] == "body.bounds.lambda_max"
     bad = client.post("/v1/tuning-jobs", json={**job_body(), "method": "inverse"})
     assert bad.status_code == 422 and bad.json()["errors"][0]["field"] == "body.method"
     bad = client.post("/v1/tuning-jobs", json={**job_body(), "ga": {"population": 1}})
