@@ -20,9 +20,9 @@ from engine.errors import ParameterError
 from engine.inverses import SVD, RobustInverse, inverse_params, make_inverse, method_spec, thin_svd
 from engine.jacobian import gjm_batch
 from engine.kinematics import kinematics_about_com, kinematics_batch, system_com
-from engine.metrics import BatchMetrics, Metrics, compute_metrics
+from engine.metrics import BatchMetrics, Metrics, Objective, compute_metrics
 from engine.model import RobotModel
-from engine.spatial import FloatArray, exp_so3, log_so3, rotation_angle
+from engine.spatial import FloatArray, exp_so3, log_so3
 from engine.trajectory import CartesianTask
 
 #: Default tolerances on the final pose for a plan to count as reaching its target. Loose on
@@ -129,27 +129,46 @@ def _nan_svd(J: FloatArray) -> SVD:
     return SVD(U, s, Vt)
 
 
-def _errors(task: CartesianTask, trace: _Trace) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+@dataclass(frozen=True)
+class _Errors:
+    position: FloatArray  # (B, N+1) m
+    attitude: FloatArray  # (B, N+1) rad, rotation angle
+    coupled: FloatArray  # (B, N+1) m rad, eq. 18 as printed
+    p_des: FloatArray  # (N+1, 3)
+    A_des: FloatArray  # (N+1, 3, 3)
+
+
+def _errors(task: CartesianTask, trace: _Trace) -> _Errors:
     p_des, A_des = task.desired_pose(trace.t)
-    pos_err = np.linalg.norm(trace.ee_position - p_des, axis=-1)
-    att_err = rotation_angle(np.swapaxes(A_des, -1, -2) @ trace.ee_attitude)
-    att_err = np.where(np.all(np.isfinite(trace.ee_attitude), axis=(-2, -1)), att_err, np.nan)
-    return pos_err, att_err, p_des, A_des
+    dp = trace.ee_position - p_des
+    finite = np.all(np.isfinite(trace.ee_attitude), axis=(-2, -1))
+    safe = np.where(finite[..., None, None], trace.ee_attitude, np.eye(3))
+    dphi = log_so3(safe @ np.swapaxes(A_des, -1, -2))  # world-axes rotation vector of the error
+    dphi = np.where(finite[..., None], dphi, np.nan)
+    return _Errors(
+        position=np.linalg.norm(dp, axis=-1),
+        attitude=np.linalg.norm(dphi, axis=-1),
+        coupled=np.linalg.norm(dp * dphi, axis=-1),
+        p_des=p_des,
+        A_des=A_des,
+    )
 
 
-def _batch_metrics(task: CartesianTask, trace: _Trace, weights: tuple[float, float], aggregation: str) -> BatchMetrics:
-    pos_err, att_err, _, _ = _errors(task, trace)
+def _batch_metrics(task: CartesianTask, trace: _Trace, objective: Objective) -> BatchMetrics:
+    errors = _errors(task, trace)
     peak = np.max(np.abs(trace.qd), axis=1)
     return compute_metrics(
         trace.t,
-        pos_err,
-        att_err,
+        errors.position,
+        errors.attitude,
+        errors.coupled,
         peak,
         trace.singular_values[..., -1],
         np.abs(trace.det_J_g),
         task.joint_speed_limit,
-        weights,
-        aggregation,
+        objective.weights,
+        objective.aggregation,
+        objective.attitude_term,
     )
 
 
@@ -215,15 +234,17 @@ def plan(
     feedback_gain: float = 0.0,
     weights: tuple[float, float] = (0.5, 0.5),
     aggregation: str = "max",
+    attitude_term: str = "angle",
     position_tolerance: float = POSITION_TOLERANCE_M,
     attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
 ) -> PlanResult:
     """Plan ``task`` with ``inverse``. ``success`` is false (with a message) if the plan
     diverged, misses the target pose by more than the tolerances, or breaks the joint
     speed limit; the arrays and metrics are returned in every case."""
+    objective = Objective(weights, aggregation, attitude_term)
     trace = _simulate(model, task, inverse, 1, feedback_gain)
-    pos_err, att_err, p_des, A_des = _errors(task, trace)
-    metrics = _batch_metrics(task, trace, weights, aggregation).item(0)
+    errors = _errors(task, trace)
+    metrics = _batch_metrics(task, trace, objective).item(0)
     success, message = _verdict(metrics, position_tolerance, attitude_tolerance)
     return PlanResult(
         method=inverse.name,
@@ -236,11 +257,11 @@ def plan(
         base_attitude=trace.base_attitude[0],
         ee_position=trace.ee_position[0],
         ee_attitude=trace.ee_attitude[0],
-        ee_position_desired=p_des,
-        ee_attitude_desired=A_des,
+        ee_position_desired=errors.p_des,
+        ee_attitude_desired=errors.A_des,
         ee_twist_desired=task.desired_twist(trace.t),
-        position_error=pos_err[0],
-        attitude_error=att_err[0],
+        position_error=errors.position[0],
+        attitude_error=errors.attitude[0],
         singular_values=trace.singular_values[0],
         det_J_g=trace.det_J_g[0],
         damping=trace.damping[0],
@@ -302,12 +323,14 @@ def plan_batch(
     feedback_gain: float = 0.0,
     weights: tuple[float, float] = (0.5, 0.5),
     aggregation: str = "max",
+    attitude_term: str = "angle",
 ) -> BatchResult:
     """Plan many parameter sets of ``method`` in one vectorised simulation.
 
     ``params`` is either ``{name: (B,) values}`` or a list of ``{name: value}`` dicts.
     ``batch_size`` splits very large populations into chunks to bound memory.
     """
+    objective = Objective(weights, aggregation, attitude_term)
     columns = _stack_params(method, params)
     total = next(iter(columns.values())).shape[0] if columns else 1
     if not columns and isinstance(params, Sequence):
@@ -318,7 +341,7 @@ def plan_batch(
         stop = min(total, start + chunk)
         inverse = make_inverse(method, **{k: v[start:stop] for k, v in columns.items()})
         trace = _simulate(model, task, inverse, stop - start, feedback_gain)
-        parts.append(_batch_metrics(task, trace, weights, aggregation))
+        parts.append(_batch_metrics(task, trace, objective))
     return BatchResult(method=method, params=columns, metrics=_concat(parts))
 
 

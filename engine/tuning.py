@@ -40,7 +40,7 @@ from deap import base, creator, tools
 
 from engine.errors import ParameterError
 from engine.inverses import check_param, method_spec
-from engine.metrics import AGGREGATIONS, Metrics, check_weights
+from engine.metrics import Metrics, Objective
 from engine.model import RobotModel
 from engine.planner import plan_batch
 from engine.spatial import FloatArray
@@ -160,8 +160,7 @@ class _Chunk:
     tasks: tuple[CartesianTask, ...]
     method: str
     params: dict[str, FloatArray]
-    weights: tuple[float, float]
-    aggregation: str
+    objective: Objective
     feedback_gain: float
 
 
@@ -175,8 +174,9 @@ def evaluate_chunk(chunk: _Chunk) -> FloatArray:
             chunk.method,
             chunk.params,
             feedback_gain=chunk.feedback_gain,
-            weights=chunk.weights,
-            aggregation=chunk.aggregation,
+            weights=chunk.objective.weights,
+            aggregation=chunk.objective.aggregation,
+            attitude_term=chunk.objective.attitude_term,
         ).objective_b
         for task in chunk.tasks
     ]
@@ -193,6 +193,18 @@ def _evaluate(map_fn: MapFn, chunks: int, base_chunk: _Chunk, params: dict[str, 
     if task_aggregation == "max":
         return np.max(per_task, axis=1)
     return np.mean(per_task, axis=1)  # inf on any task stays inf
+
+
+def dask_map(client: Any) -> MapFn:
+    """A ``map_fn`` that spreads the chunks over a Dask cluster: ``client.map`` then
+    ``client.gather`` (``client`` is a ``distributed.Client``; Dask is not imported here)."""
+
+    def mapper(fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterable[Any]:
+        futures = client.map(fn, list(items), pure=False)
+        results: list[Any] = client.gather(futures)
+        return results
+
+    return mapper
 
 
 def _fitness(b: float) -> float:
@@ -214,6 +226,7 @@ def tune(
     seed: int | np.random.Generator | None = 0,
     weights: tuple[float, float] = (0.5, 0.5),
     aggregation: str = "max",
+    attitude_term: str = "angle",
     task_aggregation: str = "mean",
     feedback_gain: float = 0.0,
     callback: Callable[[TuneProgress], bool | None] | None = None,
@@ -247,13 +260,11 @@ def tune(
         raise ParameterError("bits_per_gene", "must be in [2, 52]")
     if not 0 <= elitism < population:
         raise ParameterError("elitism", "must be in [0, population - 1]")
-    if aggregation not in AGGREGATIONS:
-        raise ParameterError("aggregation", f"must be one of {', '.join(AGGREGATIONS)}")
     if task_aggregation not in TASK_AGGREGATIONS:
         raise ParameterError("task_aggregation", f"must be one of {', '.join(TASK_AGGREGATIONS)}")
     if chunks < 1:
         raise ParameterError("chunks", "must be >= 1")
-    weights = check_weights(weights)
+    objective = Objective(weights, aggregation, attitude_term)
 
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     seed_value = seed if isinstance(seed, int) else None
@@ -262,7 +273,7 @@ def tune(
     toolbox.register("select", tools.selRoulette)
     toolbox.register("mate", tools.cxOnePoint)
     toolbox.register("mutate", tools.mutFlipBit, indpb=mutation_probability)
-    base_chunk = _Chunk(model, task_list, method, {}, weights, aggregation, feedback_gain)
+    base_chunk = _Chunk(model, task_list, method, {}, objective, feedback_gain)
 
     def evaluate(individuals: list[Any]) -> None:
         bits = np.array(individuals, dtype=float)
@@ -322,8 +333,9 @@ def tune(
             method,
             {k: [v] for k, v in best_params.items()},
             feedback_gain=feedback_gain,
-            weights=weights,
-            aggregation=aggregation,
+            weights=objective.weights,
+            aggregation=objective.aggregation,
+            attitude_term=objective.attitude_term,
         ).metrics.item(0)
         for task in task_list
     ]

@@ -173,3 +173,17 @@ def test_task_joint_count_must_match(robot, task):
 
     with pytest.raises(ValueError, match="q0"):
         plan(robot, dataclasses.replace(task, q0=task.q0[:5]), make_inverse("dls"))
+
+
+def test_eq18_attitude_term(robot, task):
+    angle = plan(robot, task, make_inverse("dls", **{"lambda": 0.05})).metrics
+    printed = plan(robot, task, make_inverse("dls", **{"lambda": 0.05}), attitude_term="eq18").metrics
+    # Same plan, only the objective differs.
+    assert printed.position_error_max == angle.position_error_max
+    assert printed.coupled_error_max == angle.coupled_error_max
+    assert printed.objective_b == pytest.approx(0.5 * printed.position_error_max + 0.5 * printed.coupled_error_max)
+    # |dp * dphi| <= |dp| |dphi| sample by sample, so the maxima obey it too.
+    assert printed.coupled_error_max <= printed.position_error_max * printed.attitude_error_max
+    assert printed.coupled_error_max > 0
+    with pytest.raises(ValueError, match="attitude_term"):
+        plan(robot, task, make_inverse("dls"), attitude_term="rpy")
