@@ -8,10 +8,10 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
-from service import errors
+from service import errors, security
 from service.db import Database
 from service.migrate import seed_presets
-from service.routers import health, plans, robots, tasks, tuning
+from service.routers import figures, health, plans, robots, tasks, tuning, web
 from service.settings import Settings
 
 DESCRIPTION = """
@@ -48,7 +48,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app = FastAPI(title="spacearm", version="0.1.0", description=DESCRIPTION, openapi_tags=TAGS, lifespan=lifespan)
     errors.install(app)
+    security.install(app, settings)
     errors.problem_openapi(app)
-    for module in (health, robots, tasks, plans, tuning):
+    for module in (health, robots, tasks, plans, tuning, figures, web):
         app.include_router(module.router)
     return app

@@ -38,7 +38,12 @@ def main(argv: list[str] | None = None) -> int:
 
         from service.app import create_app
 
-        uvicorn.run(create_app(settings), host=args.host or settings.host, port=args.port or settings.port, log_level="info")
+        host = args.host or settings.host
+        if not settings.keys() and host not in ("127.0.0.1", "localhost", "::1"):
+            logging.getLogger("spacearm.api").warning(
+                "authentication is OFF and the API listens on %s: set SPACEARM_API_KEYS before exposing it", host
+            )
+        uvicorn.run(create_app(settings), host=host, port=args.port or settings.port, log_level="info")
         return 0
     if args.command == "worker":
         from service.worker import run_worker

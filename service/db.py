@@ -2,14 +2,47 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import functools
+import random
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import make_url
+from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session, sessionmaker
+
+P = ParamSpec("P")
+T = TypeVar("T")
+
+LOCK_RETRIES = 8
+
+
+def is_locked(exc: BaseException) -> bool:
+    """SQLite's "database is locked" / "database is busy" (the busy timeout ran out)."""
+    return isinstance(exc, OperationalError) and any(w in str(exc.orig).lower() for w in ("locked", "busy"))
+
+
+def retry_locked(fn: Callable[P, T]) -> Callable[P, T]:
+    """Run ``fn`` again (in a new transaction: it must open its own session) when SQLite says the
+    database is locked, with jittered exponential backoff; the busy timeout already waited on
+    every attempt, so this only covers lock upgrades that SQLite refuses to wait for."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> T:
+        for attempt in range(LOCK_RETRIES):
+            try:
+                return fn(*args, **kwargs)
+            except OperationalError as exc:
+                if not is_locked(exc) or attempt == LOCK_RETRIES - 1:
+                    raise
+                time.sleep(min(0.02 * 2**attempt, 1.0) * (0.5 + random.random()))
+        raise AssertionError("unreachable")
+
+    return wrapper
 
 
 def ensure_sqlite_dir(url: str) -> None:
@@ -56,6 +89,16 @@ class Database:
             except BaseException:
                 session.rollback()
                 raise
+
+    def write(self, build: Callable[[Session], T]) -> T:
+        """Run ``build`` in its own session and commit, retried when the database is locked."""
+
+        @retry_locked
+        def attempt() -> T:
+            with self.session() as session:
+                return build(session)
+
+        return attempt()
 
     def dispose(self) -> None:
         self.engine.dispose()

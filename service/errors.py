@@ -2,32 +2,58 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
+from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 PROBLEM_JSON = "application/problem+json"
 PROBLEM_BASE = "https://spacearm.example/problems/"
+MAX_OFFSET = 1_000_000_000  # list offsets (larger ones overflow SQLite integers)
 
 TITLES = {
     400: "Bad Request",
+    401: "Unauthorized",
     404: "Not Found",
     405: "Method Not Allowed",
     409: "Conflict",
+    413: "Content Too Large",
     422: "Unprocessable Content",
+    429: "Too Many Requests",
     500: "Internal Server Error",
+    503: "Service Unavailable",
 }
-TYPES = {404: "not-found", 409: "conflict", 422: "validation-error", 500: "internal-error"}
+TYPES = {
+    401: "unauthorized",
+    404: "not-found",
+    409: "conflict",
+    413: "content-too-large",
+    422: "validation-error",
+    429: "too-many-requests",
+    500: "internal-error",
+    503: "unavailable",
+}
 
 
 class ApiError(Exception):
-    def __init__(self, status: int, detail: str, *, type_: str | None = None, title: str | None = None, **extra: Any) -> None:
+    def __init__(
+        self,
+        status: int,
+        detail: str,
+        *,
+        type_: str | None = None,
+        title: str | None = None,
+        headers: dict[str, str] | None = None,
+        **extra: Any,
+    ) -> None:
         super().__init__(detail)
         self.status = status
+        self.headers = headers
         self.detail = detail
         self.type_ = type_
         self.title = title
@@ -42,6 +68,22 @@ class NotFoundError(ApiError):
 class ConflictError(ApiError):
     def __init__(self, detail: str) -> None:
         super().__init__(409, detail)
+
+
+class TooManyRequestsError(ApiError):
+    def __init__(self, detail: str, retry_after_s: int) -> None:
+        super().__init__(429, detail, headers={"Retry-After": str(retry_after_s)})
+
+
+class BodyTooLargeError(StarletteHTTPException):
+    """Raised from the body-size guard while FastAPI reads a body (FastAPI re-raises HTTP exceptions)."""
+
+    def __init__(self, limit: int) -> None:
+        super().__init__(413, f"request body larger than {limit} bytes")
+
+
+def field_error(loc: list[Any], msg: str) -> dict[str, Any]:
+    return _error_item({"loc": loc, "msg": msg})
 
 
 class ApiValidationError(ApiError):
@@ -65,7 +107,14 @@ def _path(loc: list[Any]) -> str:
 
 
 def problem(
-    status: int, detail: str, *, type_: str | None = None, title: str | None = None, instance: str | None = None, **extra: Any
+    status: int,
+    detail: str,
+    *,
+    type_: str | None = None,
+    title: str | None = None,
+    instance: str | None = None,
+    headers: Mapping[str, str] | None = None,
+    **extra: Any,
 ) -> JSONResponse:
     body: dict[str, Any] = {
         "type": type_ or (PROBLEM_BASE + TYPES[status] if status in TYPES else "about:blank"),
@@ -76,13 +125,15 @@ def problem(
     if instance:
         body["instance"] = instance
     body.update(extra)
-    return JSONResponse(body, status_code=status, media_type=PROBLEM_JSON)
+    return JSONResponse(body, status_code=status, media_type=PROBLEM_JSON, headers=dict(headers) if headers else None)
 
 
 def install(app: FastAPI) -> None:
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError) -> JSONResponse:
-        return problem(exc.status, exc.detail, type_=exc.type_, title=exc.title, instance=request.url.path, **exc.extra)
+        return problem(
+            exc.status, exc.detail, type_=exc.type_, title=exc.title, instance=request.url.path, headers=exc.headers, **exc.extra
+        )
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -93,7 +144,20 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        return problem(exc.status_code, str(exc.detail), instance=request.url.path)
+        if exc.status_code == 400 and "parsing the body" in str(exc.detail):  # e.g. not UTF-8: a body error like any other
+            errors = [field_error(["body"], "the body is not valid JSON (UTF-8)")]
+            return problem(422, "body: the body is not valid JSON (UTF-8)", instance=request.url.path, errors=errors)
+        if exc.status_code == 413:
+            errors = [field_error(["body"], str(exc.detail))]
+            return problem(413, str(exc.detail), instance=request.url.path, headers=exc.headers, errors=errors)
+        return problem(exc.status_code, str(exc.detail), instance=request.url.path, headers=exc.headers)
+
+    @app.exception_handler(OperationalError)
+    async def _database_busy(request: Request, exc: OperationalError) -> JSONResponse:
+        # last resort: writes retry on a locked SQLite database, so this is rare; never leak the driver message
+        if "locked" in str(exc.orig) or "busy" in str(exc.orig):
+            return problem(503, "the database is busy; retry", instance=request.url.path, headers={"Retry-After": "1"})
+        return problem(500, "unexpected error: OperationalError", instance=request.url.path)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
@@ -123,6 +187,42 @@ def responses(*codes: int) -> dict[int | str, dict[str, Any]]:
     return {code: {"description": desc.get(code, TITLES.get(code, "error")), "model": Problem} for code in codes}
 
 
+BEARER = "bearerAuth"
+
+
+def document_guards(doc: dict[str, Any]) -> None:
+    """Document what the middleware adds to every ``/v1`` operation: bearer authentication (401),
+    the body-size limit (413), the queue limit of job submission (429) and a busy database (503)."""
+    schemes = doc.setdefault("components", {}).setdefault("securitySchemes", {})
+    schemes[BEARER] = {
+        "type": "http",
+        "scheme": "bearer",
+        "description": "`Authorization: Bearer <key>` with a key of `SPACEARM_API_KEYS`; "
+        "only enforced when that variable is set (otherwise the API is open and binds to 127.0.0.1 by default)",
+    }
+    for path, item in doc.get("paths", {}).items():
+        if not path.startswith("/v1"):
+            continue
+        for method, op in item.items():
+            if not isinstance(op, dict) or "responses" not in op:
+                continue
+            op.setdefault("security", [{BEARER: []}])
+            resp = op["responses"]
+            resp.setdefault("401", {"description": "missing or invalid API key (when authentication is on)"})
+            resp.setdefault("503", {"description": "the database is busy; retry after `Retry-After` seconds"})
+            if "requestBody" in op or method in ("post", "put", "patch"):
+                resp.setdefault("413", {"description": "request body larger than 1 MiB"})
+                resp.setdefault("422", {"description": "invalid body or parameters"})
+            if op.get("operationId") == "create_tuning_job":
+                resp.setdefault(
+                    "429",
+                    {
+                        "description": "too many queued jobs; retry after `Retry-After` seconds",
+                        "headers": {"Retry-After": {"schema": {"type": "integer"}, "description": "seconds"}},
+                    },
+                )
+
+
 def problem_openapi(app: FastAPI) -> None:
     """Error responses are ``application/problem+json`` of the ``Problem`` schema in the document."""
     from fastapi.openapi.utils import get_openapi
@@ -134,6 +234,7 @@ def problem_openapi(app: FastAPI) -> None:
             title=app.title, version=app.version, description=app.description, routes=app.routes, tags=app.openapi_tags
         )
         ref = {"$ref": "#/components/schemas/Problem"}
+        document_guards(doc)
         for item in doc.get("paths", {}).values():
             for op in item.values():
                 for code, resp in op.get("responses", {}).items():

@@ -41,6 +41,15 @@ def resolve_job_robot(session: Session, body: TuningJobRequest) -> tuple[str | N
     return robot.id, robot_model(robot.parameters)
 
 
+MAX_PLAN_EVALUATIONS = 200_000
+
+
+def planned_evaluations(body: TuningJobRequest) -> int:
+    """The plan evaluations a job may need: every individual of every generation (and the initial
+    population) on every task, twice with the DLS baseline."""
+    return body.ga.population * (body.ga.generations + 1) * len(body.tasks) * (2 if body.compare_with_dls else 1)
+
+
 def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
     """Everything the GA would reject, checked up front so a bad job is a 422, not a failure."""
     if body.method not in METHODS or not METHODS[body.method].params:
@@ -57,6 +66,17 @@ def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
         if exc.field == "weights":
             loc = ["body", "objective", "weights"]
         raise ApiValidationError(str(exc), [{"loc": loc, "msg": exc.reason}]) from None
+    except ValueError as exc:  # a bound outside the parameter's valid range
+        name = next((n for n in body.bounds or {} if f"bounds.{n}:" in str(exc)), None)
+        loc = ["body", "bounds", name] if name else ["body", "bounds"]
+        raise ApiValidationError(str(exc), [{"loc": loc, "msg": str(exc)}]) from None
+    evaluations = planned_evaluations(body)
+    if evaluations > MAX_PLAN_EVALUATIONS:
+        msg = (
+            f"population * (generations + 1) * tasks{' * 2 (compare_with_dls)' if body.compare_with_dls else ''} "
+            f"= {evaluations} plan evaluations, at most {MAX_PLAN_EVALUATIONS} per job"
+        )
+        raise ApiValidationError(f"ga: {msg}", [{"loc": ["body", "ga"], "msg": msg}])
     if body.ga.elitism >= body.ga.population:
         raise ApiValidationError(
             "ga.elitism must be smaller than ga.population",
@@ -66,7 +86,22 @@ def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
         build_task(model, task, ("body", "tasks", i))
 
 
-def _progress(p: TuneProgress, phase: str, offset: int, total: int, evaluations_before: int) -> dict[str, Any]:
+def _progress(
+    p: TuneProgress, phase: str, offset: int, total: int, evaluations_before: int, history: list[dict[str, Any]]
+) -> dict[str, Any]:
+    """Progress of the running job; ``history`` (one row per finished generation and phase, for
+    the convergence figure) is kept in it while the job runs."""
+    history.append(
+        clean(
+            {
+                "phase": phase,
+                "generation": p.generation,
+                "best": p.best_objective_b,
+                "mean": p.mean_objective_b,
+                "feasible": p.feasible,
+            }
+        )
+    )
     return clean(
         {
             "generation": offset + p.generation,
@@ -75,6 +110,7 @@ def _progress(p: TuneProgress, phase: str, offset: int, total: int, evaluations_
             "best_objective_b": p.best_objective_b,
             "best_params": p.best_params,
             "phase": phase,
+            "history": history,
         }
     )
 
@@ -106,10 +142,11 @@ def run_job(db: Database, claim: queue.Claim, lease_seconds: float, shutdown: th
     gens = body.ga.generations
     total = gens * len(phases)
     stop_reason: list[str] = []
+    history: list[dict[str, Any]] = []
 
     def make_callback(phase: str, offset: int, evaluations_before: int) -> Callable[[TuneProgress], bool]:
         def callback(p: TuneProgress) -> bool:
-            state = queue.heartbeat(db, claim, lease_seconds, _progress(p, phase, offset, total, evaluations_before))
+            state = queue.heartbeat(db, claim, lease_seconds, _progress(p, phase, offset, total, evaluations_before, history))
             if state != "ok":
                 stop_reason.append(state)
                 return True
@@ -205,6 +242,7 @@ def run_job(db: Database, claim: queue.Claim, lease_seconds: float, shutdown: th
             "best_objective_b": tuned.best_objective_b,
             "best_params": tuned.best_params,
             "phase": "done",
+            "history": history,
         }
     )
     return "succeeded" if queue.finish(db, claim, result_body, final_progress) else "lost"

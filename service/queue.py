@@ -17,7 +17,7 @@ from typing import Any
 
 from sqlalchemy import and_, or_, select, update
 
-from service.db import Database
+from service.db import Database, retry_locked
 from service.models import TuningJob, utcnow
 
 TERMINAL = ("succeeded", "failed", "cancelled")
@@ -42,6 +42,7 @@ def _claimable(now: datetime) -> Any:
     )
 
 
+@retry_locked
 def expire_exhausted(db: Database) -> int:
     """Fail jobs whose lease expired after their last allowed attempt, and finish cancelled ones
     whose worker died."""
@@ -73,6 +74,7 @@ def expire_exhausted(db: Database) -> int:
     return int(n)
 
 
+@retry_locked
 def claim(db: Database, worker_id: str, lease_seconds: float) -> Claim | None:
     """Claim the oldest claimable job for ``worker_id``; None if there is none."""
     expire_exhausted(db)
@@ -105,6 +107,7 @@ def _owned(claim: Claim) -> Any:
     return and_(TuningJob.id == claim.job_id, TuningJob.lease_owner == claim.worker_id, TuningJob.status == "running")
 
 
+@retry_locked
 def heartbeat(db: Database, claim: Claim, lease_seconds: float, progress: dict[str, Any] | None = None) -> str:
     """Renew the lease (and store ``progress``). Returns ``"ok"``, ``"cancel"`` (cancellation
     requested) or ``"lost"`` (another worker owns the job now, or it is gone)."""
@@ -124,6 +127,7 @@ def heartbeat(db: Database, claim: Claim, lease_seconds: float, progress: dict[s
     return "cancel" if row[0] else "ok"
 
 
+@retry_locked
 def _final(db: Database, claim: Claim, **values: Any) -> bool:
     with db.session() as s:
         n = _rowcount(
@@ -157,6 +161,7 @@ def requeue(db: Database, claim: Claim) -> bool:
     return _final(db, claim, status="queued", attempts=TuningJob.attempts - 1)
 
 
+@retry_locked
 def request_cancel(db: Database, job_id: str) -> str | None:
     """Cancel a queued job at once, ask a running one to stop. Returns the status afterwards,
     or None if the job does not exist."""

@@ -30,16 +30,23 @@ PAPER_TASK_EXAMPLE: dict[str, Any] = {
 }
 
 
+class Input(BaseModel):
+    """A request body: every number must be finite (NaN and infinities, which JSON parsers accept
+    as ``NaN``/``Infinity`` literals or overflow to, are rejected with the field path)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+
 # --- robots -------------------------------------------------------------------------------
 
 
-class BaseParams(BaseModel):
+class BaseParams(Input):
     mass: float = Field(description="kg")
     inertia: Matrix3 = Field(description="kg m^2 about the base CoM, base frame")
     b: Vec3 = Field(description="m, base CoM to joint 1, base frame")
 
 
-class LinkParams(BaseModel):
+class LinkParams(Input):
     name: str | None = None
     mass: float = Field(description="kg")
     joint_axis: Vec3 = Field(description="unit joint axis in the link frame")
@@ -48,14 +55,14 @@ class LinkParams(BaseModel):
     inertia: Matrix3 = Field(description="kg m^2 about the link CoM, link frame")
 
 
-class EndEffectorParams(BaseModel):
+class EndEffectorParams(Input):
     C_e: Matrix3 = Field(description="end-effector frame in the last link's frame (rotation matrix)")
 
 
-class RobotParams(BaseModel):
+class RobotParams(Input):
     """A robot parameter set in the schema of ``robot-table1.yaml`` (SI units)."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
 
     name: str = Field(min_length=1, max_length=200)
     base: BaseParams
@@ -77,7 +84,7 @@ class RobotList(BaseModel):
     total: int
 
 
-class JacobianRequest(BaseModel):
+class JacobianRequest(Input):
     joint_angles_deg: list[float] = Field(min_length=1, max_length=12, examples=[list(PAPER_Q0_DEG)])
     base_position_m: Vec3 | None = Field(default=None, description="base CoM in world, m (default origin)")
     base_attitude_quaternion: Quaternion | None = Field(default=None, description="base attitude [w, x, y, z] (default identity)")
@@ -96,17 +103,17 @@ class JacobianOut(BaseModel):
 # --- tasks --------------------------------------------------------------------------------
 
 
-class TaskIn(BaseModel):
+class TaskIn(Input):
     """A point-to-point Cartesian task; the start pose is the forward kinematics of ``q0_deg``
     with the base at rest at the origin."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": [PAPER_TASK_EXAMPLE]})
+    model_config = ConfigDict(json_schema_extra={"examples": [PAPER_TASK_EXAMPLE]}, allow_inf_nan=False)
 
     q0_deg: list[float] = Field(min_length=1, max_length=12, description="initial joint angles, deg")
     target_position_m: Vec3 = Field(description="target end-effector position, m")
     target_attitude_quaternion: Quaternion = Field(description="target end-effector attitude [w, x, y, z]")
     duration_s: float = Field(default=15.0, gt=0, le=600, description="s")
-    ramp_time_s: float = Field(default=1.5, ge=0, description="s, trapezoidal profile only; at most duration_s / 2")
+    ramp_time_s: float = Field(default=1.5, ge=0, le=300, description="s, trapezoidal profile only; at most duration_s / 2")
     dt_s: float = Field(default=0.25, gt=0, le=1, description="planner step, s")
     profile: Literal["trapezoidal", "quintic"] = "trapezoidal"
     joint_speed_limit_deg_s: float = Field(default=6.0, gt=0, description="symmetric joint speed limit, deg/s")
@@ -127,13 +134,14 @@ class TaskPresetList(BaseModel):
 # --- plans --------------------------------------------------------------------------------
 
 
-class MethodIn(BaseModel):
+class MethodIn(Input):
     name: str = Field(default="adaptive", description="inverse: inverse, dls, adaptive, wdls, sdls, svf")
     params: dict[str, float] = Field(default_factory=dict, description="method parameters; missing ones take defaults")
 
 
-class PlanRequest(BaseModel):
+class PlanRequest(Input):
     model_config = ConfigDict(
+        allow_inf_nan=False,
         json_schema_extra={
             "examples": [
                 {
@@ -146,7 +154,7 @@ class PlanRequest(BaseModel):
                     "replay": True,
                 }
             ]
-        }
+        },
     )
 
     robot_id: str | None = Field(default=None, description="a stored robot; or give `robot` inline")
@@ -234,7 +242,7 @@ class PlanList(BaseModel):
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
 
-class GASettings(BaseModel):
+class GASettings(Input):
     population: int = Field(default=40, ge=2, le=1000)
     generations: int = Field(default=50, ge=1, le=1000)
     crossover_probability: float = Field(default=0.8, ge=0, le=1)
@@ -244,14 +252,15 @@ class GASettings(BaseModel):
     seed: int | None = Field(default=0, ge=0, description="null for a random seed")
 
 
-class ObjectiveSettings(BaseModel):
+class ObjectiveSettings(Input):
     weights: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.5, 0.5]
     aggregation: Literal["max", "rms", "final"] = "max"
     task_aggregation: Literal["mean", "max"] = "mean"
 
 
-class TuningJobRequest(BaseModel):
+class TuningJobRequest(Input):
     model_config = ConfigDict(
+        allow_inf_nan=False,
         json_schema_extra={
             "examples": [
                 {
@@ -272,7 +281,7 @@ class TuningJobRequest(BaseModel):
                     "compare_with_dls": True,
                 }
             ]
-        }
+        },
     )
 
     robot_id: str | None = Field(default=None, description="a stored robot; or give `robot` inline")

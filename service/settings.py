@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from pydantic import Field
+from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -18,6 +18,16 @@ class Settings(BaseSettings):
     job_lease_seconds: float = Field(default=60.0, gt=0, description="how long a job stays claimed without a heartbeat")
     job_max_attempts: int = Field(default=3, ge=1, description="claims of one job before it is failed for good")
     sqlite_busy_timeout_ms: int = Field(default=10_000, ge=0, description="SQLite busy timeout")
+    api_keys: SecretStr | None = Field(
+        default=None, description="comma-separated bearer keys; set, every /v1 request needs one (never logged)"
+    )
+    max_queued_jobs: int = Field(default=100, ge=1, description="queued tuning jobs beyond which submissions get 429")
+    max_body_bytes: int = Field(default=1024 * 1024, ge=1, description="request bodies above this get 413")
+
+    def keys(self) -> list[str]:
+        """The configured API keys (empty: authentication is off)."""
+        raw = self.api_keys.get_secret_value() if self.api_keys is not None else ""
+        return [k.strip() for k in raw.split(",") if k.strip()]
 
 
 @lru_cache

@@ -3,20 +3,24 @@ pool and a long plan never blocks the event loop."""
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
+import numpy as np
 from fastapi import APIRouter, Query, Response, status
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from engine import RobotModel, make_inverse, plan, replay
+from engine import PlanResult, RobotModel, make_inverse, plan, replay
+from engine.errors import ParameterError
 from engine.inverses import METHODS
-from service.convert import build_task, clean, metrics_out, replay_out, robot_model, trajectory_out
+from engine.metrics import check_weights
+from service.convert import build_task, clean, field_path, metrics_out, replay_out, robot_model, trajectory_out
 from service.deps import SessionDep
-from service.errors import ApiValidationError, NotFoundError, responses
+from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
 from service.models import Plan, Robot
-from service.schemas import PlanList, PlanOut, PlanRequest, PlanSummary, RobotParams
+from service.schemas import PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut, RobotParams
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 
@@ -42,10 +46,44 @@ def check_method(name: str, params: dict[str, float], loc: tuple[str, ...] = ("b
             f"unknown method {name!r}; valid methods: {', '.join(METHODS)}",
             [{"loc": [*loc, "name"], "msg": f"must be one of {', '.join(METHODS)}"}],
         )
+    known = [p.name for p in METHODS[name].params]
+    unknown = sorted(set(params) - set(known))
+    if unknown:
+        msg = f"unknown parameter(s) {', '.join(unknown)} for {name}; valid: {', '.join(known) or 'none'}"
+        raise ApiValidationError(f"method.params: {msg}", [{"loc": [*loc, "params", unknown[0]], "msg": msg}])
     try:
         return make_inverse(name, **params)
     except ValueError as exc:
-        raise ApiValidationError(f"method.params: {exc}", [{"loc": [*loc, "params"], "msg": str(exc)}]) from None
+        where = next((p for p in known if f".{p}:" in str(exc)), None)
+        path = [*loc, "params", where] if where else [*loc, "params"]
+        raise ApiValidationError(f"method.params: {exc}", [{"loc": path, "msg": str(exc)}]) from None
+
+
+REPLAY_MAX_TRAVEL_RAD = 200.0
+
+
+def replay_skip_reason(result: PlanResult) -> str | None:
+    """Why a plan is not worth replaying, or None. ``solve_ivp`` (tight tolerances) takes time in
+    proportion to how far the joints turn: a diverged plan with absurd joint rates (found by the
+    fuzz: 1e10 deg/s) would keep a worker thread busy for minutes, so it is not replayed."""
+    qd = np.nan_to_num(np.abs(result.qd), nan=np.inf)
+    dt = np.diff(result.t)
+    if qd.shape[0] < dt.shape[0] or dt.shape[0] == 0:
+        return None
+    travel = float(np.sum(np.max(qd[: dt.shape[0]], axis=1) * dt))
+    if not math.isfinite(travel):
+        return "not replayed: the plan is not finite"
+    if travel > REPLAY_MAX_TRAVEL_RAD:
+        return (
+            f"not replayed: the planned joints turn {travel:.3g} rad in all (more than {REPLAY_MAX_TRAVEL_RAD:g} rad), "
+            "the plan is not physically meaningful"
+        )
+    return None
+
+
+def not_replayed(reason: str) -> dict[str, Any]:
+    fields = [name for name in ReplayOut.model_fields if name not in ("success", "message")]
+    return {"success": False, "message": reason, **dict.fromkeys(fields)}
 
 
 def plan_summary(p: Plan) -> PlanSummary:
@@ -78,11 +116,19 @@ def create_plan(body: PlanRequest, session: SessionDep, response: Response) -> P
     task = build_task(model, body.task)
     inverse = check_method(body.method.name, body.method.params)
     try:
+        check_weights(body.weights)
+    except ParameterError as exc:
+        raise ApiValidationError(f"weights: {exc.reason}", [{"loc": ["body", "weights"], "msg": exc.reason}]) from None
+    try:
         weights = (body.weights[0], body.weights[1])
         start = time.perf_counter()
         result = plan(model, task, inverse, feedback_gain=body.feedback_gain, weights=weights, aggregation=body.aggregation)
-        checked = replay(model, result) if body.replay else None
+        skipped = replay_skip_reason(result) if body.replay else None
+        checked = replay(model, result) if body.replay and skipped is None else None
         elapsed = time.perf_counter() - start
+    except ParameterError as exc:
+        loc = ["body", *field_path(exc.field)]
+        raise ApiValidationError(str(exc), [{"loc": loc, "msg": exc.reason}]) from None
     except ValueError as exc:
         raise ApiValidationError(str(exc), [{"loc": ["body"], "msg": str(exc)}]) from None
     row = Plan(
@@ -93,7 +139,7 @@ def create_plan(body: PlanRequest, session: SessionDep, response: Response) -> P
         message=result.message,
         metrics=metrics_out(result.metrics),
         trajectory=trajectory_out(result),
-        replay=replay_out(checked) if checked is not None else None,
+        replay=replay_out(checked) if checked is not None else (not_replayed(skipped) if skipped else None),
         elapsed_s=elapsed,
     )
     session.add(row)
@@ -103,7 +149,9 @@ def create_plan(body: PlanRequest, session: SessionDep, response: Response) -> P
 
 
 @router.get("", operation_id="list_plans", response_model=PlanList, summary="List stored plans (without trajectories)")
-def list_plans(session: SessionDep, limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0)) -> PlanList:
+def list_plans(
+    session: SessionDep, limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0, le=MAX_OFFSET)
+) -> PlanList:
     total = session.scalar(select(func.count()).select_from(Plan)) or 0
     rows = session.execute(
         select(Plan.id, Plan.robot_id, Plan.method, Plan.success, Plan.message, Plan.metrics, Plan.elapsed_s, Plan.created_at)

@@ -11,7 +11,7 @@ from engine import State, forward_kinematics, generalized_jacobian
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from service.convert import clean, robot_model
 from service.deps import SessionDep
-from service.errors import ApiValidationError, ConflictError, NotFoundError, responses
+from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, responses
 from service.models import Robot
 from service.schemas import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams
 
@@ -37,7 +37,9 @@ def load_robot(session: Session, robot_id: str) -> Robot:
 
 
 @router.get("", operation_id="list_robots", response_model=RobotList, summary="List robots", responses=responses(422))
-def list_robots(session: SessionDep, limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0)) -> RobotList:
+def list_robots(
+    session: SessionDep, limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0, le=MAX_OFFSET)
+) -> RobotList:
     total = session.scalar(select(func.count()).select_from(Robot)) or 0
     rows = session.scalars(select(Robot).order_by(Robot.created_at, Robot.id).limit(limit).offset(offset)).all()
     return RobotList(items=[robot_out(r) for r in rows], total=total)
@@ -97,6 +99,10 @@ def compute_jacobian(robot_id: str, body: JacobianRequest, session: SessionDep) 
         )
     try:
         attitude = quaternion_to_matrix(body.base_attitude_quaternion) if body.base_attitude_quaternion else np.eye(3)
+    except ValueError as exc:
+        loc = ["body", "base_attitude_quaternion"]
+        raise ApiValidationError(f"base_attitude_quaternion: {exc}", [{"loc": loc, "msg": str(exc)}]) from None
+    try:
         state = State(
             np.radians(body.joint_angles_deg),
             np.asarray(body.base_position_m if body.base_position_m else np.zeros(3), dtype=float),

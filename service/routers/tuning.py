@@ -8,16 +8,19 @@ from typing import Annotated
 from fastapi import APIRouter, Header, Query, Request, Response, status
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
 
 from service import queue
 from service.db import Database
 from service.deps import SessionDep, SettingsDep
-from service.errors import ConflictError, NotFoundError, responses
+from service.errors import MAX_OFFSET, ConflictError, NotFoundError, TooManyRequestsError, responses
 from service.jobs import resolve_job_robot, validate_request
 from service.models import TuningJob
 from service.schemas import JobProgress, JobStatus, TuningJobList, TuningJobOut, TuningJobRequest, TuningJobResult
 
 router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"])
+
+RETRY_AFTER_S = 10  # Retry-After of a 429 (the queue is full)
 
 
 def job_out(job: TuningJob) -> TuningJobOut:
@@ -45,7 +48,9 @@ def job_out(job: TuningJob) -> TuningJobOut:
     status_code=status.HTTP_202_ACCEPTED,
     summary="Submit a GA tuning job (asynchronous)",
     description="Returns 202 with `Location` of the job. Send `Idempotency-Key` to make retries safe: "
-    "the same key returns the same job.",
+    "the same key returns the same job. At most 200,000 plan evaluations per job "
+    "(population * (generations + 1) * tasks, twice with `compare_with_dls`); 429 with `Retry-After` "
+    "when `SPACEARM_MAX_QUEUED_JOBS` jobs are already queued.",
     responses=responses(404, 422),
 )
 def create_tuning_job(
@@ -56,6 +61,7 @@ def create_tuning_job(
     response: Response,
     idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key", max_length=200)] = None,
 ) -> TuningJobOut:
+    db: Database = request.app.state.db
     if idempotency_key:
         existing = session.scalar(select(TuningJob).where(TuningJob.idempotency_key == idempotency_key))
         if existing is not None:
@@ -63,22 +69,34 @@ def create_tuning_job(
             return job_out(existing)
     robot_id, model = resolve_job_robot(session, body)
     validate_request(model, body)
-    job = TuningJob(
-        status="queued",
-        robot_id=robot_id,
-        request=body.model_dump(mode="json"),
-        progress={"generation": 0, "generations": body.ga.generations * (2 if body.compare_with_dls else 1), "evaluations": 0},
-        attempts=0,
-        max_attempts=settings.job_max_attempts,
-        cancel_requested=False,
-        idempotency_key=idempotency_key,
-    )
-    session.add(job)
+    queued = session.scalar(select(func.count()).select_from(TuningJob).where(TuningJob.status == "queued")) or 0
+    if queued >= settings.max_queued_jobs:
+        raise TooManyRequestsError(
+            f"{queued} tuning jobs are queued (at most {settings.max_queued_jobs}); retry later", RETRY_AFTER_S
+        )
+    session.close()  # the insert runs in its own transaction (retried if SQLite is locked)
+
+    def insert(s: Session) -> TuningJob:
+        job = TuningJob(
+            status="queued",
+            robot_id=robot_id,
+            request=body.model_dump(mode="json"),
+            progress={
+                "generation": 0,
+                "generations": body.ga.generations * (2 if body.compare_with_dls else 1),
+                "evaluations": 0,
+            },
+            attempts=0,
+            max_attempts=settings.job_max_attempts,
+            cancel_requested=False,
+            idempotency_key=idempotency_key,
+        )
+        s.add(job)
+        return job
+
     try:
-        session.commit()  # before the response goes out: a client's next request must see it
+        job = db.write(insert)  # committed before the response goes out: a client's next request sees it
     except IntegrityError:  # the same key raced in from another request
-        session.rollback()
-        db: Database = request.app.state.db
         with db.session() as s:
             existing = s.scalar(select(TuningJob).where(TuningJob.idempotency_key == idempotency_key))
         if existing is None:
@@ -96,7 +114,7 @@ def list_tuning_jobs(
     session: SessionDep,
     status_: Annotated[JobStatus | None, Query(alias="status")] = None,
     limit: int = Query(50, ge=1, le=500),
-    offset: int = Query(0, ge=0),
+    offset: int = Query(0, ge=0, le=MAX_OFFSET),
 ) -> TuningJobList:
     where = [TuningJob.status == status_] if status_ else []
     total = session.scalar(select(func.count()).select_from(TuningJob).where(*where)) or 0

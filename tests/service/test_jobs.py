@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+import sqlite3
 from collections.abc import Callable
 
 import httpx
@@ -112,6 +113,14 @@ def test_worker_killed_mid_job_another_finishes(make_stack: Callable[..., Stack]
         assert done["status"] == "succeeded", done
         assert done["attempts"] == 2
         assert len(client.get(f"/v1/tuning-jobs/{job['id']}/result").json()["history"]) == 61
+        assert client.get("/v1/tuning-jobs").json()["total"] == 1  # still one job
+    # exactly once: one claim per worker, one final write, by the second worker
+    dead, second = (w.log.read_text() for w in stack.workers)
+    assert dead.count("claimed") == 1 and f"job {job['id']}: " not in dead
+    assert second.count("claimed") == 1 and second.count(f"job {job['id']}: succeeded") == 1
+    with sqlite3.connect(stack.db_path) as con:
+        rows = con.execute("SELECT status, attempts, result IS NOT NULL, lease_owner FROM tuning_jobs").fetchall()
+    assert rows == [("succeeded", 2, 1, None)]
 
 
 def test_sigterm_requeues_the_running_job(make_stack: Callable[..., Stack]) -> None:

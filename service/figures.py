@@ -1,0 +1,547 @@
+"""The paper's figures rendered from stored plan and tuning-job JSON (matplotlib, Agg backend).
+
+Every plan figure is a function of the plan's stored ``trajectory`` (the body of
+``GET /v1/plans/{id}``), so figures never re-run the engine. Conventions:
+
+* time on the x axis in s; joint angles and speeds in deg and deg/s; positions in mm;
+  attitudes in deg (rotation vectors); one legend entry per joint / component.
+* The *singular region* (where the smallest singular value of the GJM is below a threshold)
+  is shaded on every time plot. The threshold is the plan's own ``epsilon`` for ``adaptive``
+  and ``wdls``, ``sigma0`` for ``svf``, and otherwise :data:`DEFAULT_SINGULAR_THRESHOLD`
+  (the default ``epsilon`` of the paper's adaptive damping, 0.0677).
+* Long plans are decimated for drawing with a min/max envelope per bucket
+  (:data:`MAX_POINTS` samples per series at most), which keeps every peak while rendering a
+  20,000-step plan in a fraction of a second per figure.
+
+Rendered figures are cached per plan in a process-wide LRU (:data:`CACHE`, bounded by entries
+and bytes): plans are immutable, so ``(plan_id, name, format)`` is a complete key; the decoded
+arrays of the last few plans are kept too (:func:`plan_data`). Job figures are keyed by the
+job's progress too, so a running job's convergence figure is refreshed every generation.
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from engine.inverses import METHODS
+from engine.spatial import log_so3, quaternion_to_matrix
+
+FORMATS = {"svg": "image/svg+xml", "png": "image/png"}
+MAX_POINTS = 2000
+DEFAULT_SINGULAR_THRESHOLD = next(p.default for p in METHODS["adaptive"].params if p.name == "epsilon")
+SHADE_COLOR = "#f4a261"
+FIGSIZE = (8.0, 5.6)
+DPI = 110
+
+matplotlib.rcParams.update(
+    {
+        "svg.fonttype": "none",  # text stays text: smaller SVG, selectable labels
+        "axes.grid": True,
+        "grid.alpha": 0.3,
+        "font.size": 9,
+        "legend.fontsize": 8,
+        "path.simplify": True,
+    }
+)
+
+
+class PlanData:
+    """Numpy views of a stored plan (``trajectory`` with nulls as NaN)."""
+
+    def __init__(self, plan: dict[str, Any]) -> None:
+        self.id = str(plan.get("id", ""))
+        traj = plan["trajectory"]
+        self.method: dict[str, Any] = plan.get("method") or {}
+        self.metrics: dict[str, Any] = plan.get("metrics") or {}
+        self.request: dict[str, Any] = plan.get("request") or {}
+        self.t = _arr(traj["t_s"])
+        self.q_deg = _arr(traj["joint_angles_deg"], 2)
+        self.qd_deg_s = _arr(traj["joint_velocities_deg_s"], 2)
+        self.base_position = _arr(traj["base_position_m"], 2)
+        self.base_quat = _arr(traj["base_attitude_quaternion"], 2)
+        self.ee_position = _arr(traj["ee_position_m"], 2)
+        self.ee_position_desired = _arr(traj["ee_position_desired_m"], 2)
+        self.ee_quat = _arr(traj["ee_attitude_quaternion"], 2)
+        self.ee_quat_desired = _arr(traj["ee_attitude_desired_quaternion"], 2)
+        self.singular_values = _arr(traj["singular_values"], 2)
+        self.det = _arr(traj["det_gjm"])
+        self.damping = _arr(traj["damping"], 2)
+        self.position_error = _arr(traj["position_error_m"])
+        self.attitude_error = _arr(traj["attitude_error_rad"])
+
+    @property
+    def label(self) -> str:
+        name = str(self.method.get("name", "?"))
+        params = self.method.get("params") or {}
+        text = ", ".join(f"{k}={_fmt(v)}" for k, v in params.items())
+        return f"{name} ({text})" if text else name
+
+    @property
+    def sigma_min(self) -> np.ndarray:
+        if self.singular_values.size == 0:
+            return np.full(self.t.shape, np.nan)
+        return np.nanmin(np.where(np.isfinite(self.singular_values), self.singular_values, np.inf), axis=1)
+
+    @property
+    def threshold(self) -> tuple[float, str]:
+        return singular_threshold(self.method)
+
+    @property
+    def speed_limit_deg_s(self) -> float | None:
+        value = self.metrics.get("joint_speed_limit_deg_s")
+        if value is None:
+            value = (self.request.get("task") or {}).get("joint_speed_limit_deg_s")
+        return None if value is None else float(value)
+
+
+def singular_threshold(method: dict[str, Any]) -> tuple[float, str]:
+    """The singular-region threshold on the smallest singular value for a plan's ``method``
+    (``{"name", "params"}``), and its symbol."""
+    params = method.get("params") or {}
+    name = method.get("name")
+    if name in ("adaptive", "wdls") and params.get("epsilon") is not None:
+        return float(params["epsilon"]), "ε"
+    if name == "svf" and params.get("sigma0") is not None:
+        return float(params["sigma0"]), "σ0"
+    return DEFAULT_SINGULAR_THRESHOLD, "ε (default)"
+
+
+def _fmt(v: Any) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def _arr(values: Any, ndim: int = 1) -> np.ndarray:
+    """A float array with ``None`` as NaN."""
+    if ndim == 1:
+        return np.array([np.nan if v is None else v for v in values], dtype=float)
+    rows = [[np.nan if v is None else v for v in row] for row in values]
+    width = max((len(r) for r in rows), default=0)
+    out = np.full((len(rows), width), np.nan)
+    for i, r in enumerate(rows):
+        out[i, : len(r)] = r
+    return out
+
+
+def _rotations(quats: np.ndarray) -> np.ndarray:
+    """Rotation matrices of ``[w, x, y, z]`` rows (NaN rows stay NaN)."""
+    out = np.full(quats.shape[:-1] + (3, 3), np.nan)
+    ok = np.all(np.isfinite(quats), axis=-1)
+    if np.any(ok):
+        q = quats[ok] / np.linalg.norm(quats[ok], axis=-1, keepdims=True)
+        out[ok] = quaternion_to_matrix(q)
+    return out
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    out = np.full(R.shape[:-2] + (3,), np.nan)
+    ok = np.all(np.isfinite(R), axis=(-2, -1))
+    if np.any(ok):
+        out[ok] = log_so3(R[ok])
+    return out
+
+
+# --- drawing helpers ------------------------------------------------------------------------
+
+
+def decimate(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``max_points`` samples of ``y(t)`` keeping each bucket's min and max (peaks survive)."""
+    n = len(t)
+    if n <= max_points:
+        return t, y
+    buckets = max_points // 2
+    edges = np.linspace(0, n, buckets + 1).astype(int)
+    filled = np.where(np.isfinite(y), y, np.nan)
+    idx: list[int] = []
+    for a, b in itertools.pairwise(edges):
+        seg = filled[a:b]
+        if b <= a:
+            continue
+        if np.all(np.isnan(seg)):
+            idx.append(a)
+            continue
+        i, j = int(np.nanargmin(seg)) + a, int(np.nanargmax(seg)) + a
+        idx.extend(sorted({i, j}))
+    index = np.array(sorted(set(idx) | {0, n - 1}))
+    return t[index], y[index]
+
+
+def _line(ax: Axes, t: np.ndarray, y: np.ndarray, **kw: Any) -> None:
+    tt, yy = decimate(t, y)
+    ax.plot(tt, yy, linewidth=1.2, **kw)
+
+
+def singular_intervals(t: np.ndarray, sigma_min: np.ndarray, threshold: float) -> list[tuple[float, float]]:
+    """Time intervals where ``sigma_min < threshold`` (each sample stands for its step)."""
+    mask = np.isfinite(sigma_min) & (sigma_min < threshold)
+    if not np.any(mask) or len(t) == 0:
+        return []
+    change = np.diff(mask.astype(np.int8))
+    starts = [int(i) for i in np.flatnonzero(change == 1) + 1]
+    ends = [int(i) for i in np.flatnonzero(change == -1) + 1]
+    if mask[0]:
+        starts.insert(0, 0)
+    if mask[-1]:
+        ends.append(len(mask))
+    dt = float(t[1] - t[0]) if len(t) > 1 else 0.0
+    end = float(t[-1])
+    return [(float(t[s]), min(float(t[e - 1]) + dt, end)) for s, e in zip(starts, ends, strict=True)]
+
+
+def _shade(axes: Sequence[Axes], data: PlanData, legend_on: Axes | None = None) -> None:
+    threshold, source = data.threshold
+    intervals = singular_intervals(data.t, data.sigma_min, threshold)
+    if len(intervals) > 500:  # a flickering signal: merge to the covered span
+        intervals = [(intervals[0][0], intervals[-1][1])]
+    for ax in axes:
+        for k, (a, b) in enumerate(intervals):
+            label = f"singular region (σ_min < {source} = {threshold:.3g})" if (ax is legend_on and k == 0) else None
+            ax.axvspan(a, b, color=SHADE_COLOR, alpha=0.22, linewidth=0, label=label)
+
+
+def _legend(ax: Axes, ncol: int = 1) -> None:
+    handles, _ = ax.get_legend_handles_labels()
+    if handles:
+        ax.legend(loc="best", ncol=ncol, framealpha=0.85)
+
+
+def _new(rows: int, title: str) -> tuple[Figure, list[Axes]]:
+    fig = Figure(figsize=FIGSIZE, dpi=DPI, layout="constrained")
+    axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0].tolist()
+    fig.suptitle(title, fontsize=10)
+    axes[-1].set_xlabel("time t [s]")
+    return fig, axes
+
+
+def _title(data: PlanData, what: str) -> str:
+    return f"{what} — {data.label}"
+
+
+# --- plan figures ---------------------------------------------------------------------------
+
+
+def fig_ee_velocity(data: PlanData) -> Figure:
+    """Desired end-effector linear and angular velocity (mean over each planner step, from the
+    stored desired path) and its norm (paper Fig. 4)."""
+    fig, (ax_v, ax_w) = _new(2, _title(data, "Desired end-effector velocity"))
+    t = data.t
+    if len(t) >= 2:
+        dt = np.diff(t)
+        v = np.diff(data.ee_position_desired, axis=0) / dt[:, None] * 1e3  # mm/s
+        R = _rotations(data.ee_quat_desired)
+        dR = R[1:] @ np.swapaxes(R[:-1], -1, -2)  # world-frame increment
+        w = np.degrees(_rotvec(dR)) / dt[:, None]  # deg/s
+        tm = t[:-1]
+        for i, axis in enumerate("xyz"):
+            _line(ax_v, tm, v[:, i], label=f"v_{axis}", drawstyle="steps-post")
+            _line(ax_w, tm, w[:, i], label=f"ω_{axis}", drawstyle="steps-post")
+        _line(ax_v, tm, np.linalg.norm(v, axis=1), label="|v|", color="k", linestyle="--", drawstyle="steps-post")
+        _line(ax_w, tm, np.linalg.norm(w, axis=1), label="|ω|", color="k", linestyle="--", drawstyle="steps-post")
+    ax_v.set_ylabel("linear velocity [mm/s]")
+    ax_w.set_ylabel("angular velocity [deg/s]")
+    _shade([ax_v, ax_w], data, legend_on=ax_v)
+    _legend(ax_v, 2)
+    _legend(ax_w, 2)
+    return fig
+
+
+def fig_gjm_determinant(data: PlanData) -> Figure:
+    """det J_g and the smallest singular value over time (paper Fig. 5)."""
+    fig, (ax_d, ax_s) = _new(2, _title(data, "Generalized Jacobian: determinant and smallest singular value"))
+    if np.any(np.isfinite(data.det)):
+        _line(ax_d, data.t, data.det, label="det J_g", color="C0")
+    else:
+        ax_d.text(0.5, 0.5, "det J_g undefined (GJM not square)", transform=ax_d.transAxes, ha="center")
+    ax_d.axhline(0.0, color="k", linewidth=0.6)
+    ax_d.set_ylabel("det J_g [m³]")
+    _line(ax_s, data.t, data.sigma_min, label="σ_min(J_g)", color="C1")
+    threshold, source = data.threshold
+    ax_s.axhline(threshold, color="C3", linestyle="--", linewidth=1, label=f"{source} = {threshold:.3g}")
+    ax_s.set_ylabel("smallest singular value σ_min [–]")
+    ax_s.set_ylim(bottom=0)
+    _shade([ax_d, ax_s], data, legend_on=ax_d)
+    _legend(ax_d)
+    _legend(ax_s)
+    return fig
+
+
+def fig_joint_velocities(data: PlanData) -> Figure:
+    """Joint speeds in deg/s with the speed limit (paper Figs. 6 and 9)."""
+    fig, (ax,) = _new(1, _title(data, "Joint velocities"))
+    for j in range(data.qd_deg_s.shape[1]):
+        _line(ax, data.t, data.qd_deg_s[:, j], label=f"joint {j + 1}", drawstyle="steps-post")
+    limit = data.speed_limit_deg_s
+    if limit is not None:
+        ax.axhline(limit, color="C3", linestyle="--", linewidth=1, label=f"limit ±{limit:g} deg/s")
+        ax.axhline(-limit, color="C3", linestyle="--", linewidth=1)
+    ax.set_ylabel("joint velocity [deg/s]")
+    _shade([ax], data, legend_on=ax)
+    _legend(ax, 2)
+    return fig
+
+
+def fig_joint_angles(data: PlanData) -> Figure:
+    """Joint angles in deg (paper Fig. 8)."""
+    fig, (ax,) = _new(1, _title(data, "Joint angles"))
+    for j in range(data.q_deg.shape[1]):
+        _line(ax, data.t, data.q_deg[:, j], label=f"joint {j + 1}")
+    ax.set_ylabel("joint angle [deg]")
+    _shade([ax], data, legend_on=ax)
+    _legend(ax, 2)
+    return fig
+
+
+def _tracking(data: PlanData) -> tuple[np.ndarray, np.ndarray]:
+    """Position error components (mm) and attitude error rotation vector (deg), actual minus desired."""
+    dp = (data.ee_position - data.ee_position_desired) * 1e3
+    R = _rotations(data.ee_quat)
+    Rd = _rotations(data.ee_quat_desired)
+    dphi = np.degrees(_rotvec(R @ np.swapaxes(Rd, -1, -2)))
+    return dp, dphi
+
+
+def fig_tracking_errors(data: PlanData) -> Figure:
+    """Position (x, y, z) and attitude errors over time (paper Fig. 11)."""
+    fig, (ax_p, ax_a) = _new(2, _title(data, "End-effector tracking errors"))
+    dp, dphi = _tracking(data)
+    for i, axis in enumerate("xyz"):
+        _line(ax_p, data.t, dp[:, i], label=f"e_{axis}")
+        _line(ax_a, data.t, dphi[:, i], label=f"δφ_{axis}")
+    _line(ax_p, data.t, data.position_error * 1e3, label="|e_p|", color="k", linestyle="--")
+    _line(ax_a, data.t, np.degrees(data.attitude_error), label="|δφ| (angle)", color="k", linestyle="--")
+    ax_p.set_ylabel("position error [mm]")
+    ax_a.set_ylabel("attitude error [deg]")
+    _shade([ax_p, ax_a], data, legend_on=ax_p)
+    _legend(ax_p, 2)
+    _legend(ax_a, 2)
+    return fig
+
+
+def fig_base_motion(data: PlanData) -> Figure:
+    """Base position drift from its start (mm) and base attitude drift (rotation vector, deg)."""
+    fig, (ax_p, ax_a) = _new(2, _title(data, "Base motion (drift from the initial pose)"))
+    if len(data.t):
+        p = (data.base_position - data.base_position[0]) * 1e3
+        R = _rotations(data.base_quat)
+        drift = np.degrees(_rotvec(R @ np.swapaxes(R[0], -1, -2)))
+        for i, axis in enumerate("xyz"):
+            _line(ax_p, data.t, p[:, i], label=f"Δr0_{axis}")
+            _line(ax_a, data.t, drift[:, i], label=f"Δφ0_{axis}")
+    ax_p.set_ylabel("base position drift [mm]")
+    ax_a.set_ylabel("base attitude drift [deg]")
+    _shade([ax_p, ax_a], data, legend_on=ax_p)
+    _legend(ax_p, 2)
+    _legend(ax_a, 2)
+    return fig
+
+
+def fig_damping(data: PlanData) -> Figure:
+    """The effective damping per singular direction applied at each step (0 = undamped)."""
+    fig, (ax_l, ax_s) = _new(2, _title(data, "Damping applied per step"))
+    for i in range(data.damping.shape[1]):
+        _line(ax_l, data.t, data.damping[:, i], label=f"λ_{i + 1} (direction {i + 1})", drawstyle="steps-post")
+    ax_l.set_ylabel("effective damping λ_i [–]")
+    _line(ax_s, data.t, data.sigma_min, label="σ_min(J_g)", color="C1")
+    threshold, source = data.threshold
+    ax_s.axhline(threshold, color="C3", linestyle="--", linewidth=1, label=f"{source} = {threshold:.3g}")
+    ax_s.set_ylabel("σ_min [–]")
+    ax_s.set_ylim(bottom=0)
+    _shade([ax_l, ax_s], data, legend_on=ax_s)
+    _legend(ax_l, 2)
+    _legend(ax_s)
+    return fig
+
+
+PLAN_FIGURES: dict[str, Callable[[PlanData], Figure]] = {
+    "ee-velocity": fig_ee_velocity,
+    "gjm-determinant": fig_gjm_determinant,
+    "joint-velocities": fig_joint_velocities,
+    "joint-angles": fig_joint_angles,
+    "tracking-errors": fig_tracking_errors,
+    "base-motion": fig_base_motion,
+    "damping": fig_damping,
+}
+FIGURE_TITLES = {
+    "ee-velocity": "Desired end-effector velocity (Fig. 4)",
+    "gjm-determinant": "det J_g and smallest singular value (Fig. 5)",
+    "joint-velocities": "Joint velocities (Figs. 6, 9)",
+    "joint-angles": "Joint angles (Fig. 8)",
+    "tracking-errors": "Tracking errors (Fig. 11)",
+    "base-motion": "Base motion",
+    "damping": "Damping",
+}
+JOB_FIGURES = ("convergence",)
+COMPARE_FIGURES = ("tracking-errors",)
+
+
+def fig_compare_tracking(plans: Sequence[PlanData]) -> Figure:
+    """Position and attitude error norms of several plans on one figure (DLS versus GA-tuned)."""
+    fig, (ax_p, ax_a) = _new(2, "Tracking errors compared")
+    for k, data in enumerate(plans):
+        label = f"{data.label} [{data.id[:8]}]"
+        _line(ax_p, data.t, data.position_error * 1e3, label=label, color=f"C{k % 10}")
+        _line(ax_a, data.t, np.degrees(data.attitude_error), label=label, color=f"C{k % 10}")
+    ax_p.set_ylabel("position error |e_p| [mm]")
+    ax_a.set_ylabel("attitude error |δφ| [deg]")
+    _legend(ax_p)
+    _legend(ax_a)
+    return fig
+
+
+def fig_convergence(job: dict[str, Any]) -> Figure:
+    """Best-so-far and mean objective B per generation (paper Fig. 7), one pair of curves per GA
+    phase (the tuned method and the DLS baseline). Uses the per-generation history the worker
+    writes into the job's progress while it runs; a finished job without it falls back to its
+    result's history."""
+    history = _job_history(job)
+    fig = Figure(figsize=(8.0, 4.4), dpi=DPI, layout="constrained")
+    ax = fig.subplots()
+    status = job.get("status", "?")
+    progress = job.get("progress") or {}
+    fig.suptitle(
+        f"GA convergence — job {str(job.get('id', ''))[:8]} ({status}, generation "
+        f"{progress.get('generation', 0)}/{progress.get('generations', 0)})",
+        fontsize=10,
+    )
+    plotted = False
+    for k, (phase, rows) in enumerate(history.items()):
+        gens = np.array([r["generation"] for r in rows], dtype=float)
+        best = np.array([np.nan if r.get("best") is None else r["best"] for r in rows], dtype=float)
+        mean = np.array([np.nan if r.get("mean") is None else r["mean"] for r in rows], dtype=float)
+        ax.plot(gens, best, marker="o", markersize=3, color=f"C{k}", label=f"{phase}: best B")
+        ax.plot(gens, mean, linestyle="--", color=f"C{k}", alpha=0.7, label=f"{phase}: mean B (feasible)")
+        plotted = plotted or bool(np.any(np.isfinite(best)) or np.any(np.isfinite(mean)))
+    if not plotted:
+        ax.text(0.5, 0.5, f"no generation finished yet ({status})", transform=ax.transAxes, ha="center", va="center")
+    elif _positive(ax):
+        ax.set_yscale("log")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("generation")
+    ax.set_ylabel("objective B [m + rad, weighted]")
+    _legend(ax, 2)
+    return fig
+
+
+def _positive(ax: Axes) -> bool:
+    values = np.concatenate([np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()] or [np.zeros(0)])
+    values = values[np.isfinite(values)]
+    return bool(values.size) and bool(np.all(values > 0))
+
+
+def _job_history(job: dict[str, Any]) -> dict[str, list[dict[str, Any]]]:
+    out: dict[str, list[dict[str, Any]]] = {}
+    rows = (job.get("progress") or {}).get("history") or []
+    for r in rows:
+        out.setdefault(str(r.get("phase") or job.get("method") or "GA"), []).append(r)
+    if not out and job.get("result"):
+        method = str((job.get("result") or {}).get("method") or job.get("method") or "GA")
+        out[method] = list((job.get("result") or {}).get("history") or [])
+    return out
+
+
+# --- rendering and the cache ----------------------------------------------------------------
+
+
+def render(fig: Figure, fmt: str) -> bytes:
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown format {fmt!r}")
+    buf = io.BytesIO()
+    fig.savefig(buf, format=fmt, metadata={"Date": None} if fmt == "svg" else None)
+    return buf.getvalue()
+
+
+def render_plan_figure(plan: dict[str, Any] | PlanData, name: str, fmt: str = "svg") -> bytes:
+    data = plan if isinstance(plan, PlanData) else PlanData(plan)
+    return render(PLAN_FIGURES[name](data), fmt)
+
+
+def render_compare_figure(plans: Sequence[dict[str, Any] | PlanData], fmt: str = "svg") -> bytes:
+    data = [p if isinstance(p, PlanData) else PlanData(p) for p in plans]
+    return render(fig_compare_tracking(data), fmt)
+
+
+def render_job_figure(job: dict[str, Any], fmt: str = "svg") -> bytes:
+    return render(fig_convergence(job), fmt)
+
+
+class LRUCache:
+    """A thread-safe LRU of rendered figures, bounded by total bytes and entries."""
+
+    def __init__(self, max_entries: int = 256, max_bytes: int = 64 * 2**20) -> None:
+        self.max_entries = max_entries
+        self.max_bytes = max_bytes
+        self._data: OrderedDict[tuple[Any, ...], bytes] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, key: tuple[Any, ...]) -> bytes | None:
+        with self._lock:
+            value = self._data.get(key)
+            if value is None:
+                self.misses += 1
+                return None
+            self._data.move_to_end(key)
+            self.hits += 1
+            return value
+
+    def put(self, key: tuple[Any, ...], value: bytes) -> None:
+        with self._lock:
+            old = self._data.pop(key, None)
+            if old is not None:
+                self._bytes -= len(old)
+            self._data[key] = value
+            self._bytes += len(value)
+            while self._data and (len(self._data) > self.max_entries or self._bytes > self.max_bytes):
+                _, dropped = self._data.popitem(last=False)
+                self._bytes -= len(dropped)
+
+    def __len__(self) -> int:
+        return len(self._data)
+
+
+CACHE = LRUCache()
+
+_DATA: OrderedDict[str, PlanData] = OrderedDict()
+_DATA_LOCK = threading.Lock()
+DATA_CACHE_PLANS = 4  # decoded plans kept for rendering their other figures (a 20,000-step plan is ~8 MB)
+
+
+def plan_data(plan_id: str, load: Callable[[], dict[str, Any]]) -> PlanData:
+    """The decoded arrays of a plan, from a small LRU (decoding a long plan's JSON costs more
+    than drawing one figure, and a plan page asks for all of them at once)."""
+    with _DATA_LOCK:
+        data = _DATA.get(plan_id)
+        if data is not None:
+            _DATA.move_to_end(plan_id)
+            return data
+    data = PlanData(load())
+    with _DATA_LOCK:
+        _DATA[plan_id] = data
+        while len(_DATA) > DATA_CACHE_PLANS:
+            _DATA.popitem(last=False)
+    return data
+
+
+def cached(key: tuple[Any, ...], make: Callable[[], bytes]) -> tuple[bytes, bool]:
+    """``(bytes, hit)``; renders with ``make`` on a miss."""
+    value = CACHE.get(key)
+    if value is not None:
+        return value, True
+    value = make()
+    CACHE.put(key, value)
+    return value, False

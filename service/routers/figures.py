@@ -1,0 +1,159 @@
+"""Figures of plans and tuning jobs (SVG or PNG, rendered by :mod:`service.figures`).
+
+The compare route is declared before ``/{plan_id}/figures/{name}``: otherwise
+``/v1/plans/compare/figures/tracking-errors`` would be read as plan ``compare``."""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, Request, Response
+from sqlalchemy import select
+
+from service import figures
+from service.deps import SessionDep
+from service.errors import ApiError, ApiValidationError, NotFoundError, responses
+from service.models import Plan, TuningJob
+
+router = APIRouter(tags=["figures"])
+
+Format = Annotated[Literal["svg", "png"], Query(description="svg (default) or png")]
+MAX_COMPARE = 8
+
+IMAGE_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "the figure",
+        "content": {
+            "image/svg+xml": {"schema": {"type": "string"}},
+            "image/png": {"schema": {"type": "string", "format": "binary"}},
+        },
+    },
+}
+
+
+class UnknownFigureError(ApiError):
+    def __init__(self, name: str, valid: tuple[str, ...] | list[str]) -> None:
+        super().__init__(
+            404,
+            f"unknown figure {name!r}; valid names: {', '.join(valid)}",
+            type_="https://spacearm.example/problems/unknown-figure",
+            valid_names=list(valid),
+        )
+
+
+def _image(request: Request, content: bytes, fmt: str, hit: bool, immutable: bool) -> Response:
+    etag = '"' + hashlib.sha1(content).hexdigest() + '"'
+    headers = {
+        "ETag": etag,
+        "X-Figure-Cache": "hit" if hit else "miss",
+        "Cache-Control": "public, max-age=86400" if immutable else "no-cache",
+    }
+    if request.headers.get("if-none-match") == etag:
+        return Response(status_code=304, headers=headers)
+    return Response(content, media_type=figures.FORMATS[fmt], headers=headers)
+
+
+def plan_dict(p: Plan) -> dict[str, Any]:
+    return {"id": p.id, "method": p.method, "metrics": p.metrics, "request": p.request, "trajectory": p.trajectory}
+
+
+@router.get(
+    "/v1/plans/compare/figures/{name}",
+    operation_id="compare_plans_figure",
+    summary="Several plans on one figure (e.g. DLS versus GA-tuned adaptive damping)",
+    description="`ids` is a comma-separated list of plan ids (at most 8). Names: "
+    + ", ".join(f"`{n}`" for n in figures.COMPARE_FIGURES),
+    response_class=Response,
+    responses={**IMAGE_RESPONSES, **responses(404, 422)},
+)
+def compare_plans_figure(
+    name: str,
+    request: Request,
+    session: SessionDep,
+    ids: Annotated[str, Query(description="comma-separated plan ids", min_length=1, max_length=2000)],
+    format: Format = "svg",
+) -> Response:
+    if name not in figures.COMPARE_FIGURES:
+        raise UnknownFigureError(name, figures.COMPARE_FIGURES)
+    plan_ids = list(dict.fromkeys(i.strip() for i in ids.split(",") if i.strip()))
+    if not plan_ids or len(plan_ids) > MAX_COMPARE:
+        raise ApiValidationError(
+            f"ids: give 1 to {MAX_COMPARE} plan ids",
+            [{"loc": ["query", "ids"], "msg": f"1 to {MAX_COMPARE} comma-separated ids"}],
+        )
+    key = ("compare", name, tuple(plan_ids), format)
+    content = figures.CACHE.get(key)
+    hit = content is not None
+    if content is None:
+        rows = {p.id: p for p in session.scalars(select(Plan).where(Plan.id.in_(plan_ids))).all()}
+        for pid in plan_ids:
+            if pid not in rows:
+                raise NotFoundError("plan", pid)
+        content = figures.render_compare_figure([plan_dict(rows[pid]) for pid in plan_ids], format)
+        figures.CACHE.put(key, content)
+    return _image(request, content, format, hit, immutable=True)
+
+
+@router.get(
+    "/v1/plans/{plan_id}/figures/{name}",
+    operation_id="get_plan_figure",
+    summary="A figure of a stored plan (the paper's Figs. 4 to 11)",
+    description="Names: "
+    + ", ".join(f"`{n}`" for n in figures.PLAN_FIGURES)
+    + ". Axes carry units; the singular region (smallest singular value below the plan's epsilon, "
+    f"or {figures.DEFAULT_SINGULAR_THRESHOLD} for methods without one) is shaded. "
+    "An unknown name is a 404 whose `valid_names` lists the names.",
+    response_class=Response,
+    responses={**IMAGE_RESPONSES, **responses(404, 422)},
+)
+def get_plan_figure(plan_id: str, name: str, request: Request, session: SessionDep, format: Format = "svg") -> Response:
+    if name not in figures.PLAN_FIGURES:
+        raise UnknownFigureError(name, list(figures.PLAN_FIGURES))
+    key = ("plan", plan_id, name, format)
+    content = figures.CACHE.get(key)
+    hit = content is not None
+    if content is None:
+
+        def load() -> dict[str, Any]:
+            row = session.get(Plan, plan_id)
+            if row is None:
+                raise NotFoundError("plan", plan_id)
+            return plan_dict(row)
+
+        content = figures.render_plan_figure(figures.plan_data(plan_id, load), name, format)
+        figures.CACHE.put(key, content)
+    return _image(request, content, format, hit, immutable=True)
+
+
+@router.get(
+    "/v1/tuning-jobs/{job_id}/figures/{name}",
+    operation_id="get_tuning_job_figure",
+    summary="A figure of a tuning job: `convergence` (best and mean B per generation, paper Fig. 7)",
+    description="Updated while the job runs, from the per-generation history in its progress.",
+    response_class=Response,
+    responses={**IMAGE_RESPONSES, **responses(404, 422)},
+)
+def get_tuning_job_figure(job_id: str, name: str, request: Request, session: SessionDep, format: Format = "svg") -> Response:
+    if name not in figures.JOB_FIGURES:
+        raise UnknownFigureError(name, figures.JOB_FIGURES)
+    row = session.get(TuningJob, job_id)
+    if row is None:
+        raise NotFoundError("tuning job", job_id)
+    job: dict[str, Any] = {
+        "id": row.id,
+        "status": row.status,
+        "method": row.request.get("method"),
+        "progress": row.progress,
+        "result": row.result if row.result and not (row.progress or {}).get("history") else None,
+        "updated_at": row.updated_at.isoformat() if row.updated_at else None,
+    }
+    progress = job["progress"] or {}
+    version = (job["status"], progress.get("generation"), len(progress.get("history") or []), job["updated_at"])
+    key = ("job", job_id, name, format, version)
+    content = figures.CACHE.get(key)
+    hit = content is not None
+    if content is None:
+        content = figures.render_job_figure(job, format)
+        figures.CACHE.put(key, content)
+    return _image(request, content, format, hit, immutable=False)

@@ -1,0 +1,215 @@
+"""Limits (413, 429), bearer authentication, concurrent submissions, idempotency under retries
+and crash safety, over real HTTP against uvicorn and worker subprocesses."""
+
+from __future__ import annotations
+
+import signal
+import sqlite3
+import threading
+import uuid
+from collections import Counter
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+
+import httpx
+
+from tests.service.conftest import Stack, job_body, wait_for, wait_status
+
+PROBLEM = "application/problem+json"
+MIB = 1024 * 1024
+
+
+def _stored_jobs(stack: Stack) -> list[tuple[str, str | None]]:
+    with sqlite3.connect(stack.db_path) as con:
+        return list(con.execute("SELECT id, idempotency_key FROM tuning_jobs"))
+
+
+# --- request size and queue limits
+
+
+def test_body_over_1_mib_is_413_with_content_length(client: httpx.Client) -> None:
+    big = b'{"robot_id": "table1", "pad": "' + b"x" * MIB + b'"}'
+    r = client.post("/v1/plans", content=big, headers={"content-type": "application/json"})
+    assert r.status_code == 413 and r.headers["content-type"].startswith(PROBLEM)
+    assert r.json()["errors"][0]["field"] == "body"
+    assert client.get("/healthz").status_code == 200
+
+
+def test_body_over_1_mib_is_413_when_streamed_without_length(client: httpx.Client) -> None:
+    def chunks() -> Iterator[bytes]:
+        yield b'{"robot_id": "table1", "pad": "'
+        for _ in range(20):
+            yield b"x" * 65536  # 1.25 MiB in all, sent chunked
+        yield b'"}'
+
+    r = client.post("/v1/tuning-jobs", content=chunks(), headers={"content-type": "application/json"})
+    assert "content-length" not in r.request.headers
+    assert r.status_code == 413 and r.headers["content-type"].startswith(PROBLEM), r.text
+    small = client.post("/v1/plans", content=iter([b'{"robot_id": ', b'"table1"}']), headers={"content-type": "application/json"})
+    assert small.status_code == 422  # under the limit: read and validated as usual (task missing)
+
+
+def test_full_queue_is_429_with_retry_after(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack()
+    stack.env["SPACEARM_MAX_QUEUED_JOBS"] = "3"
+    stack.start_api()  # no worker: jobs stay queued
+    with stack.client() as client:
+        for i in range(3):
+            assert client.post("/v1/tuning-jobs", json=job_body(), headers={"Idempotency-Key": f"q{i}"}).status_code == 202
+        r = client.post("/v1/tuning-jobs", json=job_body())
+        assert r.status_code == 429 and r.headers["content-type"].startswith(PROBLEM)
+        assert int(r.headers["retry-after"]) > 0
+        # a retry of an accepted submission still answers with its job
+        again = client.post("/v1/tuning-jobs", json=job_body(), headers={"Idempotency-Key": "q1"})
+        assert again.status_code == 202
+        # a cancelled job frees its place
+        client.post(f"/v1/tuning-jobs/{again.json()['id']}/cancel")
+        assert client.post("/v1/tuning-jobs", json=job_body()).status_code == 202
+    assert len(_stored_jobs(stack)) == 4
+
+
+# --- authentication
+
+
+KEYS = ("alpha-5bd0c1e7f3a94d2e", "beta-9e1f7c3a2b6d4085")
+
+
+def test_api_keys_turn_on_bearer_auth(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack()
+    stack.env["SPACEARM_API_KEYS"] = ",".join(KEYS)
+    stack.start_api()
+    with stack.client() as client:
+        for path in ("/v1/robots", "/v1/plans", "/v1/tuning-jobs", "/v1/task-presets/paper-line", "/v1/nothing-here"):
+            r = client.get(path)
+            assert r.status_code == 401, (path, r.text)
+            assert r.headers["www-authenticate"].startswith("Bearer")
+            assert r.headers["content-type"].startswith(PROBLEM)
+        wrong = client.get("/v1/robots", headers={"Authorization": "Bearer not-a-key"})
+        assert wrong.status_code == 401 and "invalid_token" in wrong.headers["www-authenticate"]
+        assert client.get("/v1/robots", headers={"Authorization": f"Basic {KEYS[0]}"}).status_code == 401
+        assert client.get("/v1/robots", headers={"Authorization": f"Bearer {KEYS[0]}x"}).status_code == 401
+        # unauthenticated bodies are not read: no 413/422 leaks through
+        assert client.post("/v1/plans", content=b"x" * (2 * MIB)).status_code == 401
+        for key in KEYS:
+            ok = client.get("/v1/robots/table1", headers={"Authorization": f"Bearer {key}"})
+            assert ok.status_code == 200, ok.text
+        job = client.post("/v1/tuning-jobs", json=job_body(), headers={"Authorization": f"bearer {KEYS[1]}"})
+        assert job.status_code == 202
+        for path in ("/healthz", "/readyz", "/openapi.json", "/docs"):
+            assert client.get(path).status_code == 200, path
+        doc = client.get("/openapi.json").json()
+        scheme = doc["components"]["securitySchemes"]["bearerAuth"]
+        assert scheme["type"] == "http" and scheme["scheme"] == "bearer"
+        create_plan = doc["paths"]["/v1/plans"]["post"]
+        assert create_plan["security"] == [{"bearerAuth": []}] and "401" in create_plan["responses"]
+        assert "security" not in doc["paths"]["/healthz"]["get"]
+    stack.stop_api()
+    log = (stack.dir / "api.log").read_text()
+    assert "authentication is on" in log
+    assert not any(key in log for key in KEYS)  # keys are never logged
+
+
+def test_without_keys_auth_is_off_and_logged(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack()
+    stack.env.pop("SPACEARM_API_KEYS", None)
+    stack.start_api()
+    with stack.client() as client:
+        assert client.get("/v1/robots").status_code == 200
+    stack.stop_api()
+    log = (stack.dir / "api.log").read_text()
+    assert "authentication is OFF" in log and "127.0.0.1" in log
+
+
+# --- concurrency and idempotency
+
+
+def test_200_concurrent_submissions_from_50_clients_stored_once(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack()
+    stack.env["SPACEARM_MAX_QUEUED_JOBS"] = "10000"
+    stack.start_api()  # no worker: every job stays queued, so the count is exact
+    keys = [f"c-{uuid.uuid4().hex}" for _ in range(200)]
+    statuses: Counter[int] = Counter()
+    bodies: list[str] = []
+    ids: dict[str, set[str]] = {k: set() for k in keys}
+    lock = threading.Lock()
+    barrier = threading.Barrier(50)
+
+    def client_thread(index: int) -> None:
+        mine = keys[index::50]  # 4 jobs per client
+        with httpx.Client(base_url=stack.url, timeout=120) as c:
+            barrier.wait()
+            for key in mine:
+                for _attempt in range(2):  # every submission is retried once with the same key
+                    r = c.post("/v1/tuning-jobs", json=job_body(), headers={"Idempotency-Key": key})
+                    with lock:
+                        statuses[r.status_code] += 1
+                        bodies.append(r.text)
+                        if r.status_code == 202:
+                            ids[key].add(r.json()["id"])
+
+    with ThreadPoolExecutor(50) as pool:
+        list(pool.map(client_thread, range(50)))
+    print(f"\nconcurrent submissions: 400 requests (200 jobs, each retried once) from 50 clients: {dict(statuses)}")
+    assert statuses == {202: 400}, statuses
+    assert not any("locked" in b for b in bodies)
+    assert all(len(v) == 1 for v in ids.values())  # a retry got the same job
+    stored = _stored_jobs(stack)
+    print(f"stored: {len(stored)} jobs, {len({k for _, k in stored})} distinct keys")
+    assert len(stored) == 200
+    assert {k for _, k in stored} == set(keys)
+    assert {i for i, _ in stored} == set().union(*ids.values())
+    with stack.client() as c:
+        assert c.get("/v1/tuning-jobs", params={"status": "queued", "limit": 1}).json()["total"] == 200
+
+
+def test_idempotency_key_retries_never_create_a_second_job(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack()
+    stack.start_api()
+    barrier = threading.Barrier(20)
+
+    def submit(_: int) -> httpx.Response:
+        with httpx.Client(base_url=stack.url, timeout=60) as c:
+            barrier.wait()
+            return c.post("/v1/tuning-jobs", json=job_body(), headers={"Idempotency-Key": "same-key"})
+
+    with ThreadPoolExecutor(20) as pool:
+        responses = list(pool.map(submit, range(20)))
+    assert {r.status_code for r in responses} == {202}
+    assert len({r.json()["id"] for r in responses}) == 1
+    assert len({r.headers["location"] for r in responses}) == 1
+    first = responses[0].json()["id"]
+    stack.stop_api()  # later retries, even after the API restarted, get the same job too
+    stack.start_api()
+    with stack.client() as c:
+        for _ in range(3):
+            assert c.post("/v1/tuning-jobs", json=job_body(), headers={"Idempotency-Key": "same-key"}).json()["id"] == first
+    assert [k for _, k in _stored_jobs(stack)] == ["same-key"]
+
+
+# --- crash safety
+
+
+def test_job_failing_on_every_attempt_ends_failed(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack(lease_seconds=1.0)
+    stack.env["SPACEARM_JOB_MAX_ATTEMPTS"] = "2"
+    stack.start_api()
+    with stack.client() as client:
+        job = client.post("/v1/tuning-jobs", json=job_body(population=8, generations=500, compare=False)).json()
+        assert job["max_attempts"] == 2
+        for attempt in (1, 2):  # the worker dies in the middle of every attempt
+            worker = stack.start_worker()
+            wait_for(
+                lambda a=attempt: (
+                    (j := client.get(f"/v1/tuning-jobs/{job['id']}").json())["attempts"] == a
+                    and j["status"] == "running"
+                    and j["progress"]["generation"] >= 2
+                ),
+                timeout=60,
+            )
+            worker.stop(signal.SIGKILL)
+        stack.start_worker()  # finds the lease expired with no attempts left
+        failed = wait_status(client, job["id"], ("failed", "succeeded"), timeout=30)
+        assert failed["status"] == "failed" and failed["attempts"] == 2
+        assert "attempts" in failed["error"] and failed["finished_at"]
+        r = client.get(f"/v1/tuning-jobs/{job['id']}/result")
+        assert r.status_code == 409 and "attempts" in r.json()["detail"]

@@ -1,0 +1,183 @@
+"""The web page in a real headless Chromium (selenium + Debian ``chromium-driver``): open ``/``,
+submit the paper's task through the form, land on the plan page and see its figures loaded;
+submit a small tuning job and watch its page reach ``succeeded`` with the convergence figure.
+
+Chromium and chromedriver are installed by ``tests/browser/setup.sh`` when missing (apt-get,
+needs root or sudo). Set ``SPACEARM_SKIP_BROWSER_TESTS=1`` to skip these tests on a machine
+where that is impossible. Screenshots go to ``$SPACEARM_SCREENSHOTS`` (default
+``/tmp/spacearm-screens``)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.service.conftest import ROOT, Stack
+
+SETUP = ROOT / "tests" / "browser" / "setup.sh"
+SCREENS = Path(os.environ.get("SPACEARM_SCREENSHOTS", "/tmp/spacearm-screens"))
+CHROMIUM_FLAGS = [
+    "--headless=new",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-dev-shm-usage",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-extensions",
+    "--window-size=1400,1000",
+]
+
+ALL_IMAGES_LOADED = """
+const imgs = Array.from(document.querySelectorAll(arguments[0]));
+return imgs.length > 0 && imgs.every(i => i.complete && i.naturalWidth > 0);
+"""
+
+
+def _binaries() -> tuple[str | None, str | None]:
+    return shutil.which("chromium") or shutil.which("chromium-browser"), shutil.which("chromedriver")
+
+
+@pytest.fixture(scope="module")
+def browser_binaries() -> tuple[str, str]:
+    if os.environ.get("SPACEARM_SKIP_BROWSER_TESTS") == "1":
+        pytest.skip("SPACEARM_SKIP_BROWSER_TESTS=1")
+    chromium, driver = _binaries()
+    if not (chromium and driver):
+        done = subprocess.run(["sh", str(SETUP)], capture_output=True, text=True, timeout=900)
+        chromium, driver = _binaries()
+        if not (chromium and driver):
+            pytest.fail(f"tests/browser/setup.sh could not install chromium + chromedriver:\n{done.stdout}\n{done.stderr}")
+    assert chromium and driver
+    return chromium, driver
+
+
+@pytest.fixture(scope="module")
+def driver(browser_binaries: tuple[str, str]) -> Iterator[Any]:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    chromium, chromedriver = browser_binaries
+    profile = tempfile.mkdtemp(prefix="spacearm-chromium-")
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for flag in [*CHROMIUM_FLAGS, f"--user-data-dir={profile}"]:
+        options.add_argument(flag)
+    drv = webdriver.Chrome(options=options, service=Service(executable_path=chromedriver))
+    drv.set_page_load_timeout(120)
+    SCREENS.mkdir(parents=True, exist_ok=True)
+    try:
+        yield drv
+    finally:
+        drv.quit()
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+def screenshot(drv: Any, name: str) -> Path:
+    """A full-page screenshot (the window grows to the page height first)."""
+    height = int(drv.execute_script("return Math.max(document.body.scrollHeight, document.documentElement.scrollHeight)"))
+    drv.set_window_size(1400, min(max(height + 40, 800), 6000))
+    path = SCREENS / f"{name}.png"
+    assert drv.save_screenshot(str(path))
+    drv.set_window_size(1400, 1000)
+    return path
+
+
+def wait_until(drv: Any, condition: Any, timeout: float = 60.0) -> Any:
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    return WebDriverWait(drv, timeout, poll_frequency=0.1).until(condition)
+
+
+def test_submit_paper_task_and_see_plan_figures(driver: Any, stack: Stack) -> None:
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    driver.get(stack.url + "/")
+    assert "spacearm" in driver.title
+    assert "table1" in driver.find_element(By.ID, "robots").text
+    Select(driver.find_element(By.ID, "preset")).select_by_value("paper-line")
+    Select(driver.find_element(By.ID, "method")).select_by_value("adaptive")
+    for name, value in (("adaptive.lambda_max", "0.06"), ("adaptive.epsilon", "0.12")):
+        field = driver.find_element(By.NAME, name)
+        assert field.is_displayed()
+        field.clear()
+        field.send_keys(value)
+    assert not driver.find_element(By.NAME, "dls.lambda").is_displayed()  # only the chosen method's parameters
+    screenshot(driver, "01-index-form")
+    driver.find_element(By.ID, "plan-submit").click()
+
+    wait_until(driver, lambda d: "/plans/" in d.current_url)
+    plan_id = driver.current_url.rstrip("/").rsplit("/", 1)[-1]
+    assert driver.find_element(By.ID, "plan-status").text == "success"
+    summary = driver.find_element(By.ID, "summary").text
+    assert "adaptive" in summary and "epsilon=0.12" in summary
+    metrics = driver.find_element(By.ID, "metrics").text
+    assert "max position error [mm]" in metrics and "max joint speed [deg/s]" in metrics
+    images = driver.find_elements(By.CSS_SELECTOR, "#figures img")
+    assert [i.get_attribute("data-figure") for i in images] == [
+        "ee-velocity",
+        "gjm-determinant",
+        "joint-velocities",
+        "joint-angles",
+        "tracking-errors",
+        "base-motion",
+        "damping",
+    ]
+    wait_until(driver, lambda d: d.execute_script(ALL_IMAGES_LOADED, "#figures img"))
+    widths = driver.execute_script("return Array.from(document.querySelectorAll('#figures img')).map(i => i.naturalWidth)")
+    assert all(w > 0 for w in widths)
+    screenshot(driver, "02-plan-page")
+
+    with stack.client() as c:
+        stored = c.get(f"/v1/plans/{plan_id}").json()
+    assert stored["method"] == {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}}
+
+    # a bad parameter comes back to the form with the API's field path
+    driver.get(stack.url + "/")
+    Select(driver.find_element(By.ID, "method")).select_by_value("dls")
+    field = driver.find_element(By.NAME, "dls.lambda")
+    field.clear()
+    field.send_keys("-1")
+    driver.find_element(By.ID, "plan-submit").click()
+    wait_until(driver, lambda d: d.find_elements(By.ID, "form-error"))
+    assert "lambda" in driver.find_element(By.ID, "form-error").text
+    assert Select(driver.find_element(By.ID, "method")).first_selected_option.get_attribute("value") == "dls"
+    assert driver.find_element(By.NAME, "dls.lambda").get_attribute("value") == "-1"  # the form keeps what was typed
+    screenshot(driver, "03-form-error")
+
+
+def test_submit_tuning_job_and_follow_progress(driver: Any, stack: Stack) -> None:
+    from selenium.webdriver.common.by import By
+
+    driver.get(stack.url + "/")
+    form = driver.find_element(By.ID, "job-form")
+    for name, value in (("population", "6"), ("generations", "4")):
+        field = form.find_element(By.NAME, name)
+        field.clear()
+        field.send_keys(value)
+    driver.find_element(By.ID, "job-submit").click()
+    wait_until(driver, lambda d: "/jobs/" in d.current_url)
+    started = time.monotonic()
+    wait_until(driver, lambda d: d.find_element(By.ID, "job-status").text == "succeeded", timeout=90)
+    wait_until(driver, lambda d: d.find_elements(By.ID, "job-result-text"))
+    assert "DLS baseline" in driver.find_element(By.ID, "job-result-text").text
+    assert driver.find_element(By.ID, "job-progress").text == "generation 8 / 8"
+    wait_until(driver, lambda d: d.execute_script(ALL_IMAGES_LOADED, "#convergence"))
+    assert time.monotonic() - started < 90
+    screenshot(driver, "04-job-page")
+
+    driver.get(stack.url + "/")
+    assert "succeeded" in driver.find_element(By.ID, "jobs").text
+    assert len(driver.find_elements(By.CSS_SELECTOR, "#plans a")) >= 1
+    screenshot(driver, "05-index-lists")
