@@ -184,6 +184,7 @@ def run_job(db: Database, claim: queue.Claim, lease_seconds: float, shutdown: th
                 seed=body.ga.seed,
                 weights=(body.objective.weights[0], body.objective.weights[1]),
                 aggregation=body.objective.aggregation,
+                attitude_term=body.objective.attitude_term,
                 task_aggregation=body.objective.task_aggregation,
                 feedback_gain=body.feedback_gain,
                 callback=make_callback(method if index == 0 else "dls", index * gens, evaluations),

@@ -164,6 +164,11 @@ class PlanRequest(Input):
     feedback_gain: float = Field(default=0.0, ge=0, description="1/s, pose-error feedback added to the path twist")
     aggregation: Literal["max", "rms", "final"] = "max"
     weights: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.5, 0.5]
+    attitude_term: Literal["angle", "eq18"] = Field(
+        default="angle",
+        description="attitude term of B: `angle` = rotation angle (rad); `eq18` = the paper's eq. 18 as printed, "
+        "sqrt(sum (dp_i dphi_i)^2) (m rad), which reproduces the paper's B values",
+    )
     replay: bool = Field(default=True, description="re-integrate the plan with solve_ivp and report the gaps")
 
 
@@ -175,6 +180,10 @@ class PlanMetrics(BaseModel):
     attitude_error_max_rad: float | None
     attitude_error_rms_rad: float | None
     attitude_error_final_rad: float | None
+    coupled_error_max_m_rad: float | None = Field(default=None, description="eq. 18 as printed: sqrt(sum (dp_i dphi_i)^2)")
+    coupled_error_rms_m_rad: float | None = None
+    coupled_error_final_m_rad: float | None = None
+    attitude_term: Literal["angle", "eq18"] = "angle"
     max_joint_speed_deg_s: float | None
     joint_speed_limit_deg_s: float | None = None
     joint_speed_limit_respected: bool
@@ -255,6 +264,11 @@ class GASettings(Input):
 class ObjectiveSettings(Input):
     weights: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.5, 0.5]
     aggregation: Literal["max", "rms", "final"] = "max"
+    attitude_term: Literal["angle", "eq18"] = Field(
+        default="angle",
+        description="attitude term of B: `angle` = rotation angle (rad); `eq18` = the paper's eq. 18 as printed, "
+        "sqrt(sum (dp_i dphi_i)^2) (m rad), which reproduces the paper's B values",
+    )
     task_aggregation: Literal["mean", "max"] = "mean"
 
 

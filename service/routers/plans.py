@@ -122,7 +122,15 @@ def create_plan(body: PlanRequest, session: SessionDep, response: Response) -> P
     try:
         weights = (body.weights[0], body.weights[1])
         start = time.perf_counter()
-        result = plan(model, task, inverse, feedback_gain=body.feedback_gain, weights=weights, aggregation=body.aggregation)
+        result = plan(
+            model,
+            task,
+            inverse,
+            feedback_gain=body.feedback_gain,
+            weights=weights,
+            aggregation=body.aggregation,
+            attitude_term=body.attitude_term,
+        )
         skipped = replay_skip_reason(result) if body.replay else None
         checked = replay(model, result) if body.replay and skipped is None else None
         elapsed = time.perf_counter() - start

@@ -203,3 +203,14 @@ def test_openapi_contract(client: httpx.Client) -> None:
     assert "application/problem+json" in ops["get_plan"][2]["responses"]["404"]["content"]
     assert "409" in ops["get_tuning_job_result"][2]["responses"]
     assert doc["components"]["schemas"]["TaskIn"]["examples"][0]["q0_deg"] == PAPER_TASK["q0_deg"]
+
+
+def test_plan_objective_attitude_term(client: httpx.Client) -> None:
+    body = {"robot_id": "table1", "task": PAPER_TASK, "method": {"name": "dls", "params": {"lambda": 0.035}}, "replay": False}
+    angle = client.post("/v1/plans", json=body).json()["metrics"]
+    printed = client.post("/v1/plans", json={**body, "attitude_term": "eq18"}).json()["metrics"]
+    assert angle["attitude_term"] == "angle" and printed["attitude_term"] == "eq18"
+    expected = 0.5 * printed["position_error_max_m"] + 0.5 * printed["coupled_error_max_m_rad"]
+    assert printed["objective_b"] == pytest.approx(expected)
+    assert 0.002 < printed["objective_b"] < angle["objective_b"]
+    _problem(client.post("/v1/plans", json={**body, "attitude_term": "rpy"}), 422)
