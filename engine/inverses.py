@@ -20,6 +20,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
+from engine.errors import ParameterError
 from engine.spatial import FloatArray
 
 _TINY = 1e-300
@@ -368,7 +369,7 @@ def method_spec(name: str) -> MethodSpec:
     try:
         return METHODS[name]
     except KeyError:
-        raise ValueError(f"unknown inverse method {name!r}; valid methods: {', '.join(METHODS)}") from None
+        raise ParameterError("method", f"unknown inverse method {name!r}; valid methods: {', '.join(METHODS)}") from None
 
 
 def check_param(spec: ParamSpec, value: ArrayLike, field: str | None = None) -> FloatArray:
@@ -376,11 +377,11 @@ def check_param(spec: ParamSpec, value: ArrayLike, field: str | None = None) -> 
     label = field or spec.name
     arr = np.asarray(value, dtype=float)
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{label}: must be finite")
+        raise ParameterError(label, "must be finite")
     below = arr <= spec.low if spec.low_open else arr < spec.low
     if np.any(below) or np.any(arr > spec.high):
         bracket = "(" if spec.low_open else "["
-        raise ValueError(f"{label}: must be in {bracket}{spec.low}, {spec.high}], got {arr.tolist()}")
+        raise ParameterError(label, f"must be in {bracket}{spec.low}, {spec.high}], got {arr.tolist()}")
     return arr
 
 
@@ -395,11 +396,11 @@ def make_inverse(name: str, **params: Any) -> RobustInverse:
     unknown = set(params) - set(known)
     if unknown:
         valid = ", ".join(known) or "none"
-        raise ValueError(f"{name}: unknown parameter(s) {', '.join(sorted(unknown))}; valid: {valid}")
+        raise ParameterError(name, f"unknown parameter(s) {', '.join(sorted(unknown))}; valid: {valid}")
     kwargs: dict[str, Any] = {}
     for pname, p in known.items():
         value = params.get(pname, p.default)
-        arr = check_param(p, value, f"{name}.{pname}")
+        arr = check_param(p, value, pname)
         kwargs[p.field] = float(arr) if arr.ndim == 0 else arr
     inverse: RobustInverse = spec.cls(**kwargs)
     return inverse

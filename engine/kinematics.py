@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from engine.errors import ParameterError
 from engine.model import RobotModel
 from engine.spatial import FloatArray, is_rotation, skew
 
@@ -37,11 +38,11 @@ class State:
         pos = np.asarray(self.base_position, dtype=float)
         att = np.asarray(self.base_attitude, dtype=float)
         if not np.all(np.isfinite(q)):
-            raise ValueError("q: every joint angle must be finite")
+            raise ParameterError("q", "every joint angle must be finite")
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
-            raise ValueError("base_position: expected 3 finite numbers")
+            raise ParameterError("base_position", "expected 3 finite numbers")
         if not is_rotation(att):
-            raise ValueError("base_attitude: must be a rotation matrix")
+            raise ParameterError("base_attitude", "must be a rotation matrix")
         object.__setattr__(self, "q", q)
         object.__setattr__(self, "base_position", pos)
         object.__setattr__(self, "base_attitude", att)
@@ -229,7 +230,7 @@ class ForwardKinematics:
 
 def _check_state(model: RobotModel, state: State) -> None:
     if state.q.shape != (model.n_joints,):
-        raise ValueError(f"q: expected {model.n_joints} joint angles, got {state.q.shape[0]}")
+        raise ParameterError("q", f"expected {model.n_joints} joint angles, got {state.q.shape[0]}")
 
 
 def state_kinematics(model: RobotModel, state: State) -> Kinematics:

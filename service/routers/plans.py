@@ -53,10 +53,9 @@ def check_method(name: str, params: dict[str, float], loc: tuple[str, ...] = ("b
         raise ApiValidationError(f"method.params: {msg}", [{"loc": [*loc, "params", unknown[0]], "msg": msg}])
     try:
         return make_inverse(name, **params)
-    except ValueError as exc:
-        where = next((p for p in known if f".{p}:" in str(exc)), None)
-        path = [*loc, "params", where] if where else [*loc, "params"]
-        raise ApiValidationError(f"method.params: {exc}", [{"loc": path, "msg": str(exc)}]) from None
+    except ParameterError as exc:
+        path = [*loc, "params", exc.field]
+        raise ApiValidationError(f"method.params.{exc}", [{"loc": path, "msg": exc.reason}]) from None
 
 
 REPLAY_MAX_TRAVEL_RAD = 200.0
