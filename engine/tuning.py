@@ -18,7 +18,8 @@ seed from the run's ``numpy.random.Generator`` and runs the operators under a lo
 global state seeded from it, then restores the global state: same seed, same result, and
 runs in other threads do not disturb each other.
 
-Evaluation. A whole population is evaluated with :func:`engine.planner.plan_batch`, split into
+Evaluation. A whole population is evaluated with :func:`engine.planner.plan_batch` (genomes seen before are not planned again),
+split into
 ``chunks`` handed to ``map_fn`` (the builtin ``map`` by default; a process pool's or a Dask
 client's map spread it over processes or machines).
 """
@@ -79,7 +80,7 @@ class TuneProgress:
 
     generation: int
     generations: int
-    evaluations: int
+    evaluations: int  # plans run so far (repeated genomes are not planned again)
     best_objective_b: float  # best so far; inf if nothing feasible yet
     mean_objective_b: float  # mean over this generation's feasible individuals; inf if none
     feasible: int  # feasible individuals in this generation
@@ -102,13 +103,14 @@ class TuneResult:
     best_objective_b: float
     best_metrics: list[Metrics]  # metrics of the best parameters, one per task
     history: list[GenerationRecord]
-    evaluations: int  # plans evaluated (individuals x tasks)
+    evaluations: int  # plans run (distinct genomes x tasks)
     elapsed_s: float
     seed: int | None
     success: bool
     message: str
     stopped: bool = False
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    cache_hits: int = 0  # individuals whose genome had been planned before (not planned again)
 
 
 def default_bounds(method: str) -> dict[str, tuple[float, float]]:
@@ -275,12 +277,21 @@ def tune(
     toolbox.register("mutate", tools.mutFlipBit, indpb=mutation_probability)
     base_chunk = _Chunk(model, task_list, method, {}, objective, feedback_gain)
 
-    def evaluate(individuals: list[Any]) -> None:
-        bits = np.array(individuals, dtype=float)
-        objective = _evaluate(map_fn, chunks, base_chunk, decode(bits, search, bits_per_gene), task_aggregation)
-        for ind, b in zip(individuals, objective, strict=True):
-            ind.objective_b = float(b)
-            ind.fitness.values = (_fitness(float(b)),)
+    # B of every genome seen so far: a converging population repeats genomes, and the
+    # objective is a deterministic function of the genome, so each is planned once.
+    known: dict[tuple[int, ...], float] = {}
+
+    def evaluate(individuals: list[Any]) -> int:
+        """Set ``objective_b`` and fitness; returns the number of genomes actually planned."""
+        fresh = list(dict.fromkeys(tuple(ind) for ind in individuals if tuple(ind) not in known))
+        if fresh:
+            bits = np.array(fresh, dtype=float)
+            objective = _evaluate(map_fn, chunks, base_chunk, decode(bits, search, bits_per_gene), task_aggregation)
+            known.update(zip(fresh, (float(b) for b in objective), strict=True))
+        for ind in individuals:
+            ind.objective_b = known[tuple(ind)]
+            ind.fitness.values = (_fitness(ind.objective_b),)
+        return len(fresh)
 
     def params_of(ind: Any) -> dict[str, float]:
         decoded = decode(np.array([ind], dtype=float), search, bits_per_gene)
@@ -288,8 +299,9 @@ def tune(
 
     start = time.perf_counter()
     pop = [creator.SpacearmIndividual(row) for row in rng.integers(0, 2, size=(population, n_bits)).tolist()]
-    evaluate(pop)
-    evaluations = population * len(task_list)
+    planned = evaluate(pop)
+    evaluations = planned * len(task_list)
+    cache_hits = population - planned
     best = min(pop, key=lambda ind: ind.objective_b)
     history: list[GenerationRecord] = []
     stopped = False
@@ -316,8 +328,9 @@ def tune(
                     toolbox.mate(a, b)
             for ind in offspring:
                 toolbox.mutate(ind)
-        evaluate(offspring)
-        evaluations += len(offspring) * len(task_list)
+        planned = evaluate(offspring)
+        evaluations += planned * len(task_list)
+        cache_hits += len(offspring) - planned
         pop = elite + offspring
         generation_best = min(pop, key=lambda ind: ind.objective_b)
         if generation_best.objective_b < best.objective_b:
@@ -360,6 +373,7 @@ def tune(
         message=message,
         stopped=stopped,
         bounds=search,
+        cache_hits=cache_hits,
     )
 
 

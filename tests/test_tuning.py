@@ -31,7 +31,9 @@ def test_ga_finds_the_minimum_of_a_known_function(robot, task, bowl):
     assert result.best_objective_b < 0.001 + 3e-4
     bests = [h.best for h in result.history]
     assert all(a >= b for a, b in itertools.pairwise(bests))  # elitism: never worse
-    assert result.evaluations == 40 + 40 * 39  # elites are not re-evaluated
+    # Elites are not re-evaluated, repeated genomes are planned once.
+    assert result.evaluations + result.cache_hits == 40 + 40 * 39
+    assert result.cache_hits > 0
 
 
 def test_same_seed_same_result(robot, task, bowl):
@@ -60,7 +62,7 @@ def test_callback_reports_and_can_stop(robot, task, bowl):
     result = tune(robot, task, "adaptive", population=10, generations=20, seed=1, callback=callback)
     assert [p.generation for p in seen] == [0, 1, 2, 3]
     assert result.stopped and "stopped after generation 3" in result.message
-    assert seen[-1].evaluations == 10 + 3 * 9 and seen[-1].generations == 20
+    assert seen[-1].evaluations <= 10 + 3 * 9 and seen[-1].generations == 20
     assert set(seen[-1].best_params) == {"lambda_max", "epsilon"}
 
 
@@ -120,7 +122,7 @@ def test_paper_task_adaptive_beats_tuned_dls(robot, task):
         assert metrics.max_joint_speed_deg_s <= 6.0
     assert adaptive.best_objective_b < dls.best_objective_b
     assert result.improvement_percent > 0
-    assert adaptive.evaluations == 16 + 8 * 15
+    assert adaptive.evaluations + adaptive.cache_hits == 16 + 8 * 15
 
 
 def test_several_tasks(robot, task):

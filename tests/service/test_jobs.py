@@ -30,7 +30,7 @@ def test_job_succeeds_with_result(client: httpx.Client) -> None:
     assert set(result["best_params"]) == {"lambda_max", "epsilon"}
     assert result["best_objective_b"] == done["progress"]["best_objective_b"]
     assert [h["generation"] for h in result["history"]] == [0, 1, 2]
-    assert result["evaluations"] == 2 * (4 + 2 * 3)  # two GAs: initial population + 2 generations of 3 offspring
+    assert 0 < result["evaluations"] <= 2 * (4 + 2 * 3)  # two GAs: population + 2 x 3 offspring, repeats cached
     assert result["elapsed_s"] > 0
     assert result["dls_baseline"]["lambda"] > 0 and result["dls_baseline"]["objective_b"] > 0
     assert isinstance(result["improvement_over_dls_percent"], float)
