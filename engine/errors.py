@@ -1,6 +1,12 @@
-"""The engine's input error: a ``ValueError`` that names the offending field."""
+"""The engine's input error, a ``ValueError`` that names the offending field, and the shared
+check for arrays of finite numbers."""
 
 from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
 
 
 class ParameterError(ValueError):
@@ -11,3 +17,17 @@ class ParameterError(ValueError):
         super().__init__(f"{field}: {reason}")
         self.field = field
         self.reason = reason
+
+
+def finite_array(value: Any, shape: tuple[int, ...], field: str) -> NDArray[np.float64]:
+    """``value`` as a read-only float array of ``shape`` with every number finite."""
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(field, f"expected numbers of shape {shape}") from exc
+    if arr.shape != shape:
+        raise ParameterError(field, f"expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ParameterError(field, "every number must be finite")
+    arr.setflags(write=False)
+    return arr

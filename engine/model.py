@@ -17,26 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from engine.errors import ParameterError
+from engine.errors import ParameterError, finite_array
 from engine.spatial import FloatArray, is_rotation
 
 MAX_JOINTS = 12
 
 
 def _frozen(arr: FloatArray) -> FloatArray:
-    arr.setflags(write=False)
-    return arr
-
-
-def _array(value: Any, shape: tuple[int, ...], field: str) -> FloatArray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(field, f"expected numbers of shape {shape}") from exc
-    if arr.shape != shape:
-        raise ParameterError(field, f"expected shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ParameterError(field, "every number must be finite")
     arr.setflags(write=False)
     return arr
 
@@ -52,7 +39,7 @@ def _mass(value: Any, field: str) -> float:
 
 
 def _inertia(value: Any, field: str) -> FloatArray:
-    inertia = _array(value, (3, 3), field)
+    inertia = finite_array(value, (3, 3), field)
     scale = max(float(np.max(np.abs(inertia))), 1e-300)
     if not np.allclose(inertia, inertia.T, rtol=0.0, atol=1e-9 * scale):
         raise ParameterError(field, "inertia tensor must be symmetric")
@@ -67,7 +54,7 @@ def _inertia(value: Any, field: str) -> FloatArray:
 
 
 def _axis(value: Any, field: str) -> FloatArray:
-    axis = np.array(_array(value, (3,), field))
+    axis = np.array(finite_array(value, (3,), field))
     norm = float(np.linalg.norm(axis))
     if norm < 1e-9:
         raise ParameterError(field, "joint axis must be non-zero")
@@ -158,7 +145,7 @@ class RobotModel:
         base = Base(
             mass=_mass(base_data.get("mass"), "base.mass"),
             inertia=_inertia(base_data.get("inertia"), "base.inertia"),
-            b=_array(base_data.get("b"), (3,), "base.b"),
+            b=finite_array(base_data.get("b"), (3,), "base.b"),
         )
         links_data = data.get("links")
         if not isinstance(links_data, list) or not 1 <= len(links_data) <= MAX_JOINTS:
@@ -176,15 +163,15 @@ class RobotModel:
                     name=link_name,
                     mass=_mass(ld.get("mass"), f"{field}.mass"),
                     joint_axis=_axis(ld.get("joint_axis"), f"{field}.joint_axis"),
-                    a=_array(ld.get("a"), (3,), f"{field}.a"),
-                    b=_array(ld.get("b"), (3,), f"{field}.b"),
+                    a=finite_array(ld.get("a"), (3,), f"{field}.a"),
+                    b=finite_array(ld.get("b"), (3,), f"{field}.b"),
                     inertia=_inertia(ld.get("inertia"), f"{field}.inertia"),
                 )
             )
         ee = data.get("end_effector", {"C_e": np.eye(3).tolist()})
         if not isinstance(ee, dict):
             raise ParameterError("end_effector", "expected an object with C_e")
-        C_e = _array(ee.get("C_e", np.eye(3).tolist()), (3, 3), "end_effector.C_e")
+        C_e = finite_array(ee.get("C_e", np.eye(3).tolist()), (3, 3), "end_effector.C_e")
         if not is_rotation(C_e):
             raise ParameterError("end_effector.C_e", "must be a rotation matrix (orthonormal, det +1)")
         return cls(name=name, base=base, links=tuple(links), C_e=C_e)

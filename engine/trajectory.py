@@ -18,7 +18,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from engine.errors import ParameterError
+from engine.errors import ParameterError, finite_array
 from engine.kinematics import as_state, forward_kinematics
 from engine.model import RobotModel, table1_robot
 from engine.spatial import FloatArray, exp_so3, is_rotation, log_so3, rpy_spacedyn_to_matrix
@@ -32,16 +32,6 @@ MAX_STEPS = 20_000
 PAPER_Q0_DEG = (175.0, -60.0, -60.0, 0.0, 210.0, 5.0)
 PAPER_TARGET_POSITION = (1.50, 0.0, -0.20)
 PAPER_TARGET_RPY = (-3.16, -0.26, -3.14)
-
-
-def _finite(value: ArrayLike, shape: tuple[int, ...], name: str) -> FloatArray:
-    arr = np.array(value, dtype=float)
-    if arr.shape != shape:
-        raise ParameterError(name, f"expected shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ParameterError(name, "every number must be finite")
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True)
@@ -68,9 +58,9 @@ class CartesianTask:
         q0.setflags(write=False)
         object.__setattr__(self, "q0", q0)
         for name in ("start_position", "target_position"):
-            object.__setattr__(self, name, _finite(getattr(self, name), (3,), name))
+            object.__setattr__(self, name, finite_array(getattr(self, name), (3,), name))
         for name in ("start_attitude", "target_attitude"):
-            att = _finite(getattr(self, name), (3, 3), name)
+            att = finite_array(getattr(self, name), (3, 3), name)
             if not is_rotation(att):
                 raise ParameterError(name, "must be a rotation matrix")
             object.__setattr__(self, name, att)
