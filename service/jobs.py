@@ -16,7 +16,7 @@ from engine import RobotModel, TuneProgress, TuneResult, tune
 from engine.errors import ParameterError
 from engine.inverses import METHODS
 from engine.metrics import check_weights
-from engine.tuning import check_bounds, improvement_percent
+from engine.tuning import MapFn, check_bounds, improvement_percent
 from service import queue
 from service.convert import build_task, clean, field_path, metrics_out, robot_model
 from service.db import Database
@@ -117,9 +117,18 @@ class JobStoppedError(Exception):
         self.reason = reason
 
 
-def run_job(db: Database, claim: queue.Claim, lease_seconds: float, shutdown: threading.Event) -> str:
+def run_job(
+    db: Database,
+    claim: queue.Claim,
+    lease_seconds: float,
+    shutdown: threading.Event,
+    *,
+    map_fn: MapFn = map,
+    chunks: int = 1,
+) -> str:
     """Run a claimed job to its end. Returns the final status written (or ``"lost"`` /
-    ``"requeued"``)."""
+    ``"requeued"``). ``map_fn``/``chunks`` spread each generation's evaluation (a Dask
+    cluster's map, see :mod:`service.worker`)."""
     with db.session() as s:
         job = s.get(TuningJob, claim.job_id)
         if job is None:
@@ -184,6 +193,8 @@ def run_job(db: Database, claim: queue.Claim, lease_seconds: float, shutdown: th
                 task_aggregation=body.objective.task_aggregation,
                 feedback_gain=body.feedback_gain,
                 callback=make_callback(method if index == 0 else "dls", index * gens, evaluations),
+                map_fn=map_fn,
+                chunks=chunks,
             )
             evaluations += result.evaluations
             results.append(result)

@@ -23,6 +23,12 @@ class Settings(BaseSettings):
     )
     max_queued_jobs: int = Field(default=100, ge=1, description="queued tuning jobs beyond which submissions get 429")
     max_body_bytes: int = Field(default=1024 * 1024, ge=1, description="request bodies above this get 413")
+    dask_scheduler: str | None = Field(
+        default=None,
+        description="address of a Dask scheduler (e.g. tcp://10.0.0.5:8786); set, workers spread each GA "
+        "generation over the cluster (needs the `dask` extra)",
+    )
+    dask_chunks: int = Field(default=8, ge=1, description="pieces each generation is split into for the Dask cluster")
 
     def keys(self) -> list[str]:
         """The configured API keys (empty: authentication is off)."""

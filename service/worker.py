@@ -11,6 +11,7 @@ import threading
 import uuid
 from typing import Any
 
+from engine.tuning import MapFn, dask_map
 from service import queue
 from service.db import Database
 from service.jobs import run_job
@@ -39,6 +40,17 @@ def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Ev
     db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
     seed_presets(db)
     me = worker_id()
+    dask_client = None
+    map_fn: MapFn = map
+    chunks = 1
+    if settings.dask_scheduler:
+        try:
+            from distributed import Client
+        except ImportError as exc:  # pragma: no cover - depends on the installation
+            raise SystemExit("SPACEARM_DASK_SCHEDULER is set but Dask is not installed: pip install 'spacearm[dask]'") from exc
+        dask_client = Client(settings.dask_scheduler)
+        map_fn, chunks = dask_map(dask_client), settings.dask_chunks
+        log.info("GA evaluation spread over the Dask cluster at %s in %d chunks", settings.dask_scheduler, chunks)
     log.info("worker %s polling %s every %.2f s", me, settings.database_url, settings.worker_poll_seconds)
     processed = 0
     try:
@@ -50,11 +62,13 @@ def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Ev
                 stop.wait(settings.worker_poll_seconds)
                 continue
             log.info("job %s claimed (attempt %d)", claim.job_id, claim.attempts)
-            outcome = run_job(db, claim, settings.job_lease_seconds, stop)
+            outcome = run_job(db, claim, settings.job_lease_seconds, stop, map_fn=map_fn, chunks=chunks)
             log.info("job %s: %s", claim.job_id, outcome)
             processed += 1
             if once:
                 break
     finally:
+        if dask_client is not None:
+            dask_client.close()
         db.dispose()
     return processed
