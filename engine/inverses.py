@@ -396,7 +396,7 @@ def make_inverse(name: str, **params: Any) -> RobustInverse:
     unknown = set(params) - set(known)
     if unknown:
         valid = ", ".join(known) or "none"
-        raise ParameterError(name, f"unknown parameter(s) {', '.join(sorted(unknown))}; valid: {valid}")
+        raise ParameterError(min(unknown), f"unknown parameter(s) {', '.join(sorted(unknown))} for {name}; valid: {valid}")
     kwargs: dict[str, Any] = {}
     for pname, p in known.items():
         value = params.get(pname, p.default)

@@ -64,17 +64,6 @@ class Kinematics:
     ee_position: FloatArray
     ee_attitude: FloatArray
 
-    def shifted(self, offset: FloatArray) -> Kinematics:
-        """The same configuration translated by ``offset (B, 3)``."""
-        return Kinematics(
-            body_attitudes=self.body_attitudes,
-            body_com=self.body_com + offset[:, None, :],
-            joint_positions=self.joint_positions + offset[:, None, :],
-            joint_axes=self.joint_axes,
-            ee_position=self.ee_position + offset,
-            ee_attitude=self.ee_attitude,
-        )
-
 
 # Columns of the per-joint product A_j R~_j (R~_j is the joint rotation R_j extended by
 # constant columns, see _ChainConstants.joint_terms): A_{j+1} (3 columns), then

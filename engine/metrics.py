@@ -147,13 +147,13 @@ def objective(
     position_errors: FloatArray,
     attitude_errors: FloatArray,
     speed_ok: np.ndarray,
-    weights: tuple[float, float],
-    aggregation: str,
+    settings: Objective,
 ) -> FloatArray:
-    """The paper's ``B`` per plan ``(B,)`` from per-sample position errors and the chosen
-    attitude term ``(B, N+1)``; +inf where the speed limit is broken or errors are not finite."""
-    w1, w2 = check_weights(weights)
-    b = w1 * aggregate(position_errors, aggregation) + w2 * aggregate(attitude_errors, aggregation)
+    """The paper's ``B`` per plan ``(B,)`` from per-sample position errors and the attitude term
+    chosen by ``settings`` ``(B, N+1)``; +inf where the speed limit is broken or errors are not
+    finite."""
+    w1, w2 = settings.weights
+    b = w1 * aggregate(position_errors, settings.aggregation) + w2 * aggregate(attitude_errors, settings.aggregation)
     return np.where(speed_ok & np.isfinite(b), b, np.inf)
 
 
@@ -166,16 +166,11 @@ def compute_metrics(
     sigma_min: FloatArray,
     abs_det: FloatArray,
     joint_speed_limit: float,
-    weights: tuple[float, float] = (0.5, 0.5),
-    aggregation: str = "max",
-    attitude_term: str = "angle",
+    settings: Objective,
 ) -> BatchMetrics:
     """Metrics of ``B`` plans from per-sample series ``(B, N+1)`` (position error m, attitude
     angle rad, eq. 18 coupled error m rad) and per-joint peak speeds ``joint_speed_peak (B, n)``
-    (rad/s, absolute)."""
-    if aggregation not in AGGREGATIONS:
-        raise ParameterError("aggregation", f"must be one of {', '.join(AGGREGATIONS)}")
-    check_attitude_term(attitude_term)
+    (rad/s, absolute); ``settings`` says how ``B`` is formed."""
     finite = (
         np.all(np.isfinite(position_errors), axis=-1)
         & np.all(np.isfinite(attitude_errors), axis=-1)
@@ -210,10 +205,10 @@ def compute_metrics(
         min_abs_det_J_g=det[rows, i_det] if square else np.full(rows.shape, np.nan),
         time_of_min_abs_det_J_g=t[i_det] if square else np.full(rows.shape, np.nan),
         objective_b=objective(
-            position_errors, attitude_errors if attitude_term == "angle" else coupled_errors, speed_ok, weights, aggregation
+            position_errors, attitude_errors if settings.attitude_term == "angle" else coupled_errors, speed_ok, settings
         ),
-        weights=check_weights(weights),
-        aggregation=aggregation,
-        attitude_term=attitude_term,
+        weights=settings.weights,
+        aggregation=settings.aggregation,
+        attitude_term=settings.attitude_term,
         finite=finite,
     )

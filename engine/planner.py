@@ -154,8 +154,7 @@ def _errors(task: CartesianTask, trace: _Trace) -> _Errors:
     )
 
 
-def _batch_metrics(task: CartesianTask, trace: _Trace, objective: Objective) -> BatchMetrics:
-    errors = _errors(task, trace)
+def _batch_metrics(task: CartesianTask, trace: _Trace, errors: _Errors, objective: Objective) -> BatchMetrics:
     peak = np.max(np.abs(trace.qd), axis=1)
     return compute_metrics(
         trace.t,
@@ -166,9 +165,7 @@ def _batch_metrics(task: CartesianTask, trace: _Trace, objective: Objective) -> 
         trace.singular_values[..., -1],
         np.abs(trace.det_J_g),
         task.joint_speed_limit,
-        objective.weights,
-        objective.aggregation,
-        objective.attitude_term,
+        objective,
     )
 
 
@@ -244,7 +241,7 @@ def plan(
     objective = Objective(weights, aggregation, attitude_term)
     trace = _simulate(model, task, inverse, 1, feedback_gain)
     errors = _errors(task, trace)
-    metrics = _batch_metrics(task, trace, objective).item(0)
+    metrics = _batch_metrics(task, trace, errors, objective).item(0)
     success, message = _verdict(metrics, position_tolerance, attitude_tolerance)
     return PlanResult(
         method=inverse.name,
@@ -293,24 +290,15 @@ def _stack_params(method: str, params: ParamSets) -> dict[str, FloatArray]:
         rows = list(params)
         if not rows:
             raise ParameterError("params", "at least one parameter set is needed")
-        names = {p.name for p in spec.params}
-        columns = {}
-        for name in names:
-            columns[name] = np.array([row.get(name, _default(method, name)) for row in rows], dtype=float)
-        extra = set().union(*(set(r) for r in rows)) - names
+        defaults = {p.name: p.default for p in spec.params}
+        extra = set().union(*(set(r) for r in rows)) - set(defaults)
         if extra:
-            raise ParameterError(method, f"unknown parameter(s) {', '.join(sorted(extra))}")
+            raise ParameterError(min(extra), f"unknown parameter(s) {', '.join(sorted(extra))} for {method}")
+        columns = {name: np.array([row.get(name, d) for row in rows], dtype=float) for name, d in defaults.items()}
     sizes = {v.shape for v in columns.values()}
     if len(sizes) > 1 or any(len(s) != 1 for s in sizes):
         raise ParameterError("params", "every parameter needs the same number of values (one per plan)")
     return columns
-
-
-def _default(method: str, name: str) -> float:
-    for p in method_spec(method).params:
-        if p.name == name:
-            return p.default
-    raise ParameterError(method, f"unknown parameter {name!r}")
 
 
 def plan_batch(
@@ -341,7 +329,7 @@ def plan_batch(
         stop = min(total, start + chunk)
         inverse = make_inverse(method, **{k: v[start:stop] for k, v in columns.items()})
         trace = _simulate(model, task, inverse, stop - start, feedback_gain)
-        parts.append(_batch_metrics(task, trace, objective))
+        parts.append(_batch_metrics(task, trace, _errors(task, trace), objective))
     return BatchResult(method=method, params=columns, metrics=_concat(parts))
 
 

@@ -50,6 +50,7 @@ from engine.trajectory import CartesianTask
 INFEASIBLE_FITNESS = 1e-9
 MAX_POPULATION = 1000
 MAX_GENERATIONS = 1000
+MAX_BITS_PER_GENE = 52  # a float64 mantissa: more bits cannot be decoded exactly
 TASK_AGGREGATIONS = ("mean", "max")
 
 MapFn = Callable[[Callable[[Any], Any], Iterable[Any]], Iterable[Any]]
@@ -113,23 +114,18 @@ class TuneResult:
     cache_hits: int = 0  # individuals whose genome had been planned before (not planned again)
 
 
-def default_bounds(method: str) -> dict[str, tuple[float, float]]:
-    """Default GA search bounds of ``method``'s parameters."""
-    return {p.name: p.tune_bounds for p in method_spec(method).params}
-
-
 def check_bounds(method: str, bounds: Mapping[str, Sequence[float]] | None) -> dict[str, tuple[float, float]]:
     """Validate search bounds: every parameter of ``method`` tuned, ``lo < hi`` within its valid
     range. Missing parameters take their default bounds."""
     spec = method_spec(method)
     if not spec.params:
-        raise ParameterError("bounds", f"method {method!r} has no parameters to tune")
+        raise ParameterError("method", f"method {method!r} has no parameters to tune")
     known = {p.name: p for p in spec.params}
     bounds = dict(bounds or {})
     unknown = set(bounds) - set(known)
     if unknown:
         raise ParameterError(
-            "bounds", f"unknown parameter(s) {', '.join(sorted(unknown))} for {method}; valid: {', '.join(known)}"
+            f"bounds.{min(unknown)}", f"unknown parameter(s) {', '.join(sorted(unknown))} for {method}; valid: {', '.join(known)}"
         )
     out: dict[str, tuple[float, float]] = {}
     for name, p in known.items():
@@ -258,8 +254,8 @@ def tune(
         raise ParameterError("crossover_probability", "must be in [0, 1]")
     if not 0.0 <= mutation_probability <= 1.0:
         raise ParameterError("mutation_probability", "must be in [0, 1]")
-    if not 2 <= bits_per_gene <= 52:
-        raise ParameterError("bits_per_gene", "must be in [2, 52]")
+    if not 2 <= bits_per_gene <= MAX_BITS_PER_GENE:
+        raise ParameterError("bits_per_gene", f"must be in [2, {MAX_BITS_PER_GENE}]")
     if not 0 <= elitism < population:
         raise ParameterError("elitism", "must be in [0, population - 1]")
     if task_aggregation not in TASK_AGGREGATIONS:
@@ -304,8 +300,6 @@ def tune(
     cache_hits = population - planned
     best = min(pop, key=lambda ind: ind.objective_b)
     history: list[GenerationRecord] = []
-    stopped = False
-
     def record(generation: int) -> bool:
         feasible = [ind.objective_b for ind in pop if math.isfinite(ind.objective_b)]
         mean_b = float(np.mean(feasible)) if feasible else math.inf

@@ -7,12 +7,14 @@ import math
 from typing import Any
 
 import numpy as np
+from sqlalchemy.orm import Session
 
 from engine import CartesianTask, Metrics, PlanResult, ReplayResult, RobotModel
 from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
-from service.errors import ApiValidationError
-from service.schemas import TaskIn
+from service.errors import ApiValidationError, NotFoundError
+from service.models import Robot
+from service.schemas import RobotParams, TaskIn
 
 
 def clean(value: Any) -> Any:
@@ -50,6 +52,21 @@ def robot_model(parameters: dict[str, Any], loc: tuple[str | int, ...] = ("body"
     except ParameterError as exc:
         path = [*loc, *field_path(exc.field)]
         raise ApiValidationError(f"invalid robot parameters: {exc}", [{"loc": path, "msg": exc.reason}]) from None
+
+
+def resolve_robot(session: Session, robot_id: str | None, inline: RobotParams | None) -> tuple[str | None, RobotModel]:
+    """The robot of a request: inline parameters win over ``robot_id`` (a stored robot)."""
+    if inline is not None:
+        return None, robot_model(inline.model_dump(exclude_none=True), ("body", "robot"))
+    if robot_id is None:
+        raise ApiValidationError(
+            "give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
+            [{"loc": ["body", "robot_id"], "msg": "robot_id or robot is required"}],
+        )
+    robot = session.get(Robot, robot_id)
+    if robot is None:
+        raise NotFoundError("robot", robot_id)
+    return robot.id, robot_model(robot.parameters)
 
 
 def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("body", "task")) -> CartesianTask:

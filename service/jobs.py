@@ -10,35 +10,18 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from sqlalchemy.orm import Session
-
 from engine import RobotModel, TuneProgress, TuneResult, tune
 from engine.errors import ParameterError
 from engine.inverses import METHODS
-from engine.metrics import check_weights
 from engine.tuning import MapFn, check_bounds, improvement_percent
 from service import queue
-from service.convert import build_task, clean, field_path, metrics_out, robot_model
+from service.convert import build_task, clean, field_path, metrics_out, resolve_robot
 from service.db import Database
-from service.errors import ApiError, ApiValidationError, NotFoundError
-from service.models import Robot, TuningJob
+from service.errors import ApiError, ApiValidationError
+from service.models import TuningJob
 from service.schemas import TuningJobRequest
 
 log = logging.getLogger("spacearm.worker")
-
-
-def resolve_job_robot(session: Session, body: TuningJobRequest) -> tuple[str | None, RobotModel]:
-    if body.robot is not None:
-        return None, robot_model(body.robot.model_dump(exclude_none=True), ("body", "robot"))
-    if body.robot_id is None:
-        raise ApiValidationError(
-            "give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
-            [{"loc": ["body", "robot_id"], "msg": "robot_id or robot is required"}],
-        )
-    robot = session.get(Robot, body.robot_id)
-    if robot is None:
-        raise NotFoundError("robot", body.robot_id)
-    return robot.id, robot_model(robot.parameters)
 
 
 MAX_PLAN_EVALUATIONS = 200_000
@@ -60,11 +43,8 @@ def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
         )
     try:
         check_bounds(body.method, body.bounds)
-        check_weights(body.objective.weights)
     except ParameterError as exc:
         loc = ["body", *field_path(exc.field)]
-        if exc.field == "weights":
-            loc = ["body", "objective", "weights"]
         raise ApiValidationError(str(exc), [{"loc": loc, "msg": exc.reason}]) from None
     evaluations = planned_evaluations(body)
     if evaluations > MAX_PLAN_EVALUATIONS:
@@ -73,11 +53,6 @@ def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
             f"= {evaluations} plan evaluations, at most {MAX_PLAN_EVALUATIONS} per job"
         )
         raise ApiValidationError(f"ga: {msg}", [{"loc": ["body", "ga"], "msg": msg}])
-    if body.ga.elitism >= body.ga.population:
-        raise ApiValidationError(
-            "ga.elitism must be smaller than ga.population",
-            [{"loc": ["body", "ga", "elitism"], "msg": "must be < population"}],
-        )
     for i, task in enumerate(body.tasks):
         build_task(model, task, ("body", "tasks", i))
 
@@ -137,7 +112,7 @@ def run_job(
     try:
         body = TuningJobRequest.model_validate(request)
         with db.session() as s:
-            _, model = resolve_job_robot(s, body)
+            _, model = resolve_robot(s, body.robot_id, body.robot)
         tasks = [build_task(model, t, ("tasks", i)) for i, t in enumerate(body.tasks)]
     except ApiError as exc:
         queue.fail(db, claim, f"invalid job: {exc.detail}")

@@ -3,18 +3,42 @@ in ``_deg`` (or ``_deg_s``); quaternions are ``[w, x, y, z]``."""
 
 from __future__ import annotations
 
-import math
 from datetime import datetime
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
+from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, check_weights
 from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
-from engine.trajectory import PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY
+from engine.trajectory import MAX_DURATION_S, PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY
+from engine.tuning import MAX_BITS_PER_GENE, MAX_GENERATIONS, MAX_POPULATION
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Quaternion = Annotated[list[float], Field(min_length=4, max_length=4, description="unit quaternion [w, x, y, z]")]
 Matrix3 = Annotated[list[Vec3], Field(min_length=3, max_length=3)]
+
+# The objective's options, as the engine defines them (checked below so the two cannot drift).
+AggregationName = Literal["max", "rms", "final"]
+AttitudeTermName = Literal["angle", "eq18"]
+assert set(get_args(AggregationName)) == set(AGGREGATIONS) and set(get_args(AttitudeTermName)) == set(ATTITUDE_TERMS)
+AttitudeTerm = Annotated[
+    AttitudeTermName,
+    Field(
+        description="attitude term of B: `angle` = rotation angle (rad); `eq18` = the paper's eq. 18 as printed, "
+        "sqrt(sum (dp_i dphi_i)^2) (m rad), which reproduces the paper's B values"
+    ),
+]
+
+
+def _weights(value: list[float]) -> list[float]:
+    return list(check_weights(value))
+
+
+Weights = Annotated[
+    list[float],
+    Field(min_length=2, max_length=2, description="(w1, w2) of B: finite, >= 0, not both zero"),
+    AfterValidator(_weights),
+]
 
 PAPER_TARGET_QUATERNION = [round(float(x), 12) for x in matrix_to_quaternion(rpy_spacedyn_to_matrix(PAPER_TARGET_RPY))]
 
@@ -112,7 +136,7 @@ class TaskIn(Input):
     q0_deg: list[float] = Field(min_length=1, max_length=12, description="initial joint angles, deg")
     target_position_m: Vec3 = Field(description="target end-effector position, m")
     target_attitude_quaternion: Quaternion = Field(description="target end-effector attitude [w, x, y, z]")
-    duration_s: float = Field(default=15.0, gt=0, le=600, description="s")
+    duration_s: float = Field(default=15.0, gt=0, le=MAX_DURATION_S, description="s")
     ramp_time_s: float = Field(default=1.5, ge=0, le=300, description="s, trapezoidal profile only; at most duration_s / 2")
     dt_s: float = Field(default=0.25, gt=0, le=1, description="planner step, s")
     profile: Literal["trapezoidal", "quintic"] = "trapezoidal"
@@ -162,13 +186,9 @@ class PlanRequest(Input):
     task: TaskIn
     method: MethodIn = Field(default_factory=MethodIn)
     feedback_gain: float = Field(default=0.0, ge=0, description="1/s, pose-error feedback added to the path twist")
-    aggregation: Literal["max", "rms", "final"] = "max"
-    weights: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.5, 0.5]
-    attitude_term: Literal["angle", "eq18"] = Field(
-        default="angle",
-        description="attitude term of B: `angle` = rotation angle (rad); `eq18` = the paper's eq. 18 as printed, "
-        "sqrt(sum (dp_i dphi_i)^2) (m rad), which reproduces the paper's B values",
-    )
+    aggregation: AggregationName = "max"
+    weights: Weights = [0.5, 0.5]
+    attitude_term: AttitudeTerm = "angle"
     replay: bool = Field(default=True, description="re-integrate the plan with solve_ivp and report the gaps")
 
 
@@ -183,7 +203,7 @@ class PlanMetrics(BaseModel):
     coupled_error_max_m_rad: float | None = Field(default=None, description="eq. 18 as printed: sqrt(sum (dp_i dphi_i)^2)")
     coupled_error_rms_m_rad: float | None = None
     coupled_error_final_m_rad: float | None = None
-    attitude_term: Literal["angle", "eq18"] = "angle"
+    attitude_term: AttitudeTermName = "angle"
     max_joint_speed_deg_s: float | None
     joint_speed_limit_deg_s: float | None = None
     joint_speed_limit_respected: bool
@@ -252,23 +272,27 @@ JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
 
 class GASettings(Input):
-    population: int = Field(default=40, ge=2, le=1000)
-    generations: int = Field(default=50, ge=1, le=1000)
+    population: int = Field(default=40, ge=2, le=MAX_POPULATION)
+    generations: int = Field(default=50, ge=1, le=MAX_GENERATIONS)
     crossover_probability: float = Field(default=0.8, ge=0, le=1)
     mutation_probability: float = Field(default=0.02, ge=0, le=1, description="per-bit flip probability")
-    bits_per_gene: int = Field(default=16, ge=2, le=52)
-    elitism: int = Field(default=1, ge=0)
+    bits_per_gene: int = Field(default=16, ge=2, le=MAX_BITS_PER_GENE)
+    elitism: int = Field(default=1, ge=0, description="best individuals kept unchanged; < population")
     seed: int | None = Field(default=0, ge=0, description="null for a random seed")
+
+    @field_validator("elitism")
+    @classmethod
+    def _elitism_below_population(cls, value: int, info: ValidationInfo) -> int:
+        population = info.data.get("population")
+        if population is not None and value >= population:
+            raise ValueError(f"must be smaller than population ({population})")
+        return value
 
 
 class ObjectiveSettings(Input):
-    weights: Annotated[list[float], Field(min_length=2, max_length=2)] = [0.5, 0.5]
-    aggregation: Literal["max", "rms", "final"] = "max"
-    attitude_term: Literal["angle", "eq18"] = Field(
-        default="angle",
-        description="attitude term of B: `angle` = rotation angle (rad); `eq18` = the paper's eq. 18 as printed, "
-        "sqrt(sum (dp_i dphi_i)^2) (m rad), which reproduces the paper's B values",
-    )
+    weights: Weights = [0.5, 0.5]
+    aggregation: AggregationName = "max"
+    attitude_term: AttitudeTerm = "angle"
     task_aggregation: Literal["mean", "max"] = "mean"
 
 
@@ -370,10 +394,3 @@ class Health(BaseModel):
     database: str | None = None
     revision: str | None = None
     head: str | None = None
-
-
-def finite_or_none(x: float | None) -> float | None:
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None

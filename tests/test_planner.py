@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from engine import CartesianTask, make_inverse, plan, plan_batch
-from engine.metrics import objective
+from engine.metrics import Objective, objective
 from engine.spatial import exp_so3, rotation_angle
 
 DAMPED = ("dls", "adaptive", "wdls", "sdls", "svf")
@@ -116,13 +116,16 @@ def test_objective_aggregations_and_penalty():
     pos = np.array([[0.0, 0.004, 0.002]])
     att = np.array([[0.0, 0.01, 0.006]])
     ok = np.array([True])
-    assert objective(pos, att, ok, (0.5, 0.5), "max")[0] == pytest.approx(0.007)
-    assert objective(pos, att, ok, (0.5, 0.5), "final")[0] == pytest.approx(0.004)
+    assert objective(pos, att, ok, Objective((0.5, 0.5), "max"))[0] == pytest.approx(0.007)
+    assert objective(pos, att, ok, Objective((0.5, 0.5), "final"))[0] == pytest.approx(0.004)
     rms = 0.5 * np.sqrt(np.mean(pos**2)) + 0.5 * np.sqrt(np.mean(att**2))
-    assert objective(pos, att, ok, (0.5, 0.5), "rms")[0] == pytest.approx(rms)
-    assert math.isinf(objective(pos, att, np.array([False]), (0.5, 0.5), "max")[0])
-    with pytest.raises(ValueError):
-        objective(pos, att, ok, (0.5, 0.5), "mean")
+    assert objective(pos, att, ok, Objective((0.5, 0.5), "rms"))[0] == pytest.approx(rms)
+    assert objective(pos, att, ok, Objective((1.0, 0.0), "max"))[0] == pytest.approx(0.004)
+    assert math.isinf(objective(pos, att, np.array([False]), Objective())[0])
+    with pytest.raises(ValueError, match="aggregation"):
+        Objective((0.5, 0.5), "mean")
+    with pytest.raises(ValueError, match="weights"):
+        Objective((0.0, 0.0))
 
 
 def test_metrics_respect_speed_limit_definition(robot, task):

@@ -10,52 +10,27 @@ from typing import Any
 import numpy as np
 from fastapi import APIRouter, Query, Response, status
 from sqlalchemy import func, select
-from sqlalchemy.orm import Session
 
-from engine import PlanResult, RobotModel, make_inverse, plan, replay
+from engine import PlanResult, make_inverse, plan, replay
 from engine.errors import ParameterError
-from engine.inverses import METHODS
-from engine.metrics import check_weights
-from service.convert import build_task, clean, field_path, metrics_out, replay_out, robot_model, trajectory_out
+from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
 from service.deps import SessionDep
 from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
-from service.models import Plan, Robot
-from service.schemas import PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut, RobotParams
+from service.models import Plan
+from service.schemas import PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 
 
-def resolve_robot(session: Session, robot_id: str | None, inline: RobotParams | None) -> tuple[str | None, RobotModel]:
-    """The robot of a request: inline parameters win over ``robot_id``."""
-    if inline is not None:
-        return None, robot_model(inline.model_dump(exclude_none=True), ("body", "robot"))
-    if robot_id is None:
-        raise ApiValidationError(
-            "give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
-            [{"loc": ["body", "robot_id"], "msg": "robot_id or robot is required"}],
-        )
-    robot = session.get(Robot, robot_id)
-    if robot is None:
-        raise NotFoundError("robot", robot_id)
-    return robot.id, robot_model(robot.parameters)
-
-
 def check_method(name: str, params: dict[str, float], loc: tuple[str, ...] = ("body", "method")) -> Any:
-    if name not in METHODS:
-        raise ApiValidationError(
-            f"unknown method {name!r}; valid methods: {', '.join(METHODS)}",
-            [{"loc": [*loc, "name"], "msg": f"must be one of {', '.join(METHODS)}"}],
-        )
-    known = [p.name for p in METHODS[name].params]
-    unknown = sorted(set(params) - set(known))
-    if unknown:
-        msg = f"unknown parameter(s) {', '.join(unknown)} for {name}; valid: {', '.join(known) or 'none'}"
-        raise ApiValidationError(f"method.params: {msg}", [{"loc": [*loc, "params", unknown[0]], "msg": msg}])
+    """The engine's strategy for ``name``; unknown names and bad parameters are 422s naming
+    ``method.name`` or ``method.params.<parameter>``."""
     try:
         return make_inverse(name, **params)
     except ParameterError as exc:
-        path = [*loc, "params", exc.field]
-        raise ApiValidationError(f"method.params.{exc}", [{"loc": path, "msg": exc.reason}]) from None
+        path = [*loc, "name"] if exc.field == "method" else [*loc, "params", exc.field]
+        where = ".".join(str(p) for p in path[1:])
+        raise ApiValidationError(f"{where}: {exc.reason}", [{"loc": path, "msg": exc.reason}]) from None
 
 
 REPLAY_MAX_TRAVEL_RAD = 200.0
@@ -115,18 +90,13 @@ def create_plan(body: PlanRequest, session: SessionDep, response: Response) -> P
     task = build_task(model, body.task)
     inverse = check_method(body.method.name, body.method.params)
     try:
-        check_weights(body.weights)
-    except ParameterError as exc:
-        raise ApiValidationError(f"weights: {exc.reason}", [{"loc": ["body", "weights"], "msg": exc.reason}]) from None
-    try:
-        weights = (body.weights[0], body.weights[1])
         start = time.perf_counter()
         result = plan(
             model,
             task,
             inverse,
             feedback_gain=body.feedback_gain,
-            weights=weights,
+            weights=(body.weights[0], body.weights[1]),
             aggregation=body.aggregation,
             attitude_term=body.attitude_term,
         )

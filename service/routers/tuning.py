@@ -11,10 +11,11 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from service import queue
+from service.convert import resolve_robot
 from service.db import Database
 from service.deps import SessionDep, SettingsDep
 from service.errors import MAX_OFFSET, ConflictError, NotFoundError, TooManyRequestsError, responses
-from service.jobs import resolve_job_robot, validate_request
+from service.jobs import validate_request
 from service.models import TuningJob
 from service.schemas import JobProgress, JobStatus, TuningJobList, TuningJobOut, TuningJobRequest, TuningJobResult
 
@@ -67,7 +68,7 @@ def create_tuning_job(
         if existing is not None:
             response.headers["Location"] = f"/v1/tuning-jobs/{existing.id}"
             return job_out(existing)
-    robot_id, model = resolve_job_robot(session, body)
+    robot_id, model = resolve_robot(session, body.robot_id, body.robot)
     validate_request(model, body)
     queued = session.scalar(select(func.count()).select_from(TuningJob).where(TuningJob.status == "queued")) or 0
     if queued >= settings.max_queued_jobs:

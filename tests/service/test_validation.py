@@ -220,7 +220,7 @@ def test_bounds_lo_below_hi_within_range(client: httpx.Client) -> None:
     r = client.post("/v1/tuning-jobs", json={**job_body(), "bounds": {"lambda_max": [0.1, 0.2, 0.3]}})
     assert _fields(r) == ["body.bounds.lambda_max"]
     r = client.post("/v1/tuning-jobs", json={**job_body(), "bounds": {"gamma": [0.1, 0.2]}})
-    assert _fields(r) == ["body.bounds"]
+    assert _fields(r) == ["body.bounds.gamma"]
     assert "valid: lambda_max, epsilon" in r.json()["detail"]
 
 
