@@ -143,6 +143,8 @@ class GJMResult:
     determinant: float | None  # det J_g when n == 6, else None
     manipulability: float  # product of singular values (= sqrt(det(J_g J_g^T)) for n >= 6)
     condition_number: float  # sigma_max / sigma_min (inf at a singularity)
+    ee_position: FloatArray  # (3,) m, the end-effector pose at the same state
+    ee_attitude: FloatArray  # (3, 3)
     success: bool = True
     message: str = "ok"
 
@@ -162,4 +164,6 @@ def generalized_jacobian(model: RobotModel, state: State) -> GJMResult:
         determinant=determinant,
         manipulability=float(np.prod(sv)),
         condition_number=cond,
+        ee_position=kin.ee_position[0],
+        ee_attitude=kin.ee_attitude[0],
     )

@@ -70,12 +70,8 @@ def resolve_robot(session: Session, robot_id: str | None, inline: RobotParams | 
 
 
 def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("body", "task")) -> CartesianTask:
-    if len(task.q0_deg) != model.n_joints:
-        raise ApiValidationError(
-            f"task.q0_deg has {len(task.q0_deg)} joint angles but the robot has {model.n_joints} joints",
-            [{"loc": [*loc, "q0_deg"], "msg": f"expected {model.n_joints} joint angles, got {len(task.q0_deg)}"}],
-        )
     names = {
+        "q": "q0_deg",
         "q0": "q0_deg",
         "target_position": "target_position_m",
         "target_attitude": "target_attitude_quaternion",

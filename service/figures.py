@@ -26,6 +26,7 @@ import itertools
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
+from functools import cached_property
 from typing import Any
 
 import matplotlib
@@ -90,13 +91,13 @@ class PlanData:
         text = ", ".join(f"{k}={_fmt(v)}" for k, v in params.items())
         return f"{name} ({text})" if text else name
 
-    @property
+    @cached_property
     def sigma_min(self) -> np.ndarray:
         if self.singular_values.size == 0:
             return np.full(self.t.shape, np.nan)
         return np.nanmin(np.where(np.isfinite(self.singular_values), self.singular_values, np.inf), axis=1)
 
-    @property
+    @cached_property
     def threshold(self) -> tuple[float, str]:
         return singular_threshold(self.method)
 

@@ -73,7 +73,7 @@ def _progress(
             }
         )
     )
-    return clean(
+    progress: dict[str, Any] = clean(
         {
             "generation": offset + p.generation,
             "generations": total,
@@ -81,9 +81,10 @@ def _progress(
             "best_objective_b": p.best_objective_b,
             "best_params": p.best_params,
             "phase": phase,
-            "history": history,
         }
     )
+    progress["history"] = history  # rows were cleaned as they were added
+    return progress
 
 
 class JobStoppedError(Exception):

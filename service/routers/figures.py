@@ -6,6 +6,7 @@ The compare route is declared before ``/{plan_id}/figures/{name}``: otherwise
 from __future__ import annotations
 
 import hashlib
+from functools import partial
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response
@@ -82,16 +83,16 @@ def compare_plans_figure(
             f"ids: give 1 to {MAX_COMPARE} plan ids",
             [{"loc": ["query", "ids"], "msg": f"1 to {MAX_COMPARE} comma-separated ids"}],
         )
-    key = ("compare", name, tuple(plan_ids), format)
-    content = figures.CACHE.get(key)
-    hit = content is not None
-    if content is None:
+
+    def render() -> bytes:
         rows = {p.id: p for p in session.scalars(select(Plan).where(Plan.id.in_(plan_ids))).all()}
         for pid in plan_ids:
             if pid not in rows:
                 raise NotFoundError("plan", pid)
-        content = figures.render_compare_figure([plan_dict(rows[pid]) for pid in plan_ids], format)
-        figures.CACHE.put(key, content)
+        data = [figures.plan_data(pid, partial(plan_dict, rows[pid])) for pid in plan_ids]
+        return figures.render_compare_figure(data, format)
+
+    content, hit = figures.cached(("compare", name, tuple(plan_ids), format), render)
     return _image(request, content, format, hit, immutable=True)
 
 
@@ -110,19 +111,16 @@ def compare_plans_figure(
 def get_plan_figure(plan_id: str, name: str, request: Request, session: SessionDep, format: Format = "svg") -> Response:
     if name not in figures.PLAN_FIGURES:
         raise UnknownFigureError(name, list(figures.PLAN_FIGURES))
-    key = ("plan", plan_id, name, format)
-    content = figures.CACHE.get(key)
-    hit = content is not None
-    if content is None:
 
-        def load() -> dict[str, Any]:
-            row = session.get(Plan, plan_id)
-            if row is None:
-                raise NotFoundError("plan", plan_id)
-            return plan_dict(row)
+    def load() -> dict[str, Any]:
+        row = session.get(Plan, plan_id)
+        if row is None:
+            raise NotFoundError("plan", plan_id)
+        return plan_dict(row)
 
-        content = figures.render_plan_figure(figures.plan_data(plan_id, load), name, format)
-        figures.CACHE.put(key, content)
+    content, hit = figures.cached(
+        ("plan", plan_id, name, format), lambda: figures.render_plan_figure(figures.plan_data(plan_id, load), name, format)
+    )
     return _image(request, content, format, hit, immutable=True)
 
 
@@ -150,10 +148,5 @@ def get_tuning_job_figure(job_id: str, name: str, request: Request, session: Ses
     }
     progress = job["progress"] or {}
     version = (job["status"], progress.get("generation"), len(progress.get("history") or []), job["updated_at"])
-    key = ("job", job_id, name, format, version)
-    content = figures.CACHE.get(key)
-    hit = content is not None
-    if content is None:
-        content = figures.render_job_figure(job, format)
-        figures.CACHE.put(key, content)
+    content, hit = figures.cached(("job", job_id, name, format, version), lambda: figures.render_job_figure(job, format))
     return _image(request, content, format, hit, immutable=False)

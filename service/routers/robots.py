@@ -7,7 +7,8 @@ from fastapi import APIRouter, Query, Response, status
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from engine import State, forward_kinematics, generalized_jacobian
+from engine import State, generalized_jacobian
+from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from service.convert import clean, robot_model
 from service.deps import SessionDep
@@ -83,6 +84,10 @@ def delete_robot(robot_id: str, session: SessionDep) -> Response:
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
+#: Engine state fields and their names in the request body.
+STATE_FIELDS = {"q": "joint_angles_deg", "base_position": "base_position_m", "base_attitude": "base_attitude_quaternion"}
+
+
 @router.post(
     "/{robot_id}/jacobian",
     operation_id="compute_jacobian",
@@ -92,11 +97,6 @@ def delete_robot(robot_id: str, session: SessionDep) -> Response:
 )
 def compute_jacobian(robot_id: str, body: JacobianRequest, session: SessionDep) -> JacobianOut:
     model = robot_model(load_robot(session, robot_id).parameters)
-    if len(body.joint_angles_deg) != model.n_joints:
-        raise ApiValidationError(
-            f"joint_angles_deg: expected {model.n_joints} joint angles, got {len(body.joint_angles_deg)}",
-            [{"loc": ["body", "joint_angles_deg"], "msg": f"expected {model.n_joints} joint angles"}],
-        )
     try:
         attitude = quaternion_to_matrix(body.base_attitude_quaternion) if body.base_attitude_quaternion else np.eye(3)
     except ValueError as exc:
@@ -108,10 +108,10 @@ def compute_jacobian(robot_id: str, body: JacobianRequest, session: SessionDep) 
             np.asarray(body.base_position_m if body.base_position_m else np.zeros(3), dtype=float),
             attitude,
         )
-    except ValueError as exc:
-        raise ApiValidationError(str(exc), [{"loc": ["body"], "msg": str(exc)}]) from None
-    gjm = generalized_jacobian(model, state)
-    fk = forward_kinematics(model, state)
+        gjm = generalized_jacobian(model, state)
+    except ParameterError as exc:
+        field = STATE_FIELDS.get(exc.field, exc.field)
+        raise ApiValidationError(f"{field}: {exc.reason}", [{"loc": ["body", field], "msg": exc.reason}]) from None
     return JacobianOut(
         **clean(
             {
@@ -120,8 +120,8 @@ def compute_jacobian(robot_id: str, body: JacobianRequest, session: SessionDep) 
                 "determinant": gjm.determinant,
                 "manipulability": gjm.manipulability,
                 "condition_number": gjm.condition_number,
-                "ee_position_m": fk.ee_position,
-                "ee_attitude_quaternion": matrix_to_quaternion(fk.ee_attitude),
+                "ee_position_m": gjm.ee_position,
+                "ee_attitude_quaternion": matrix_to_quaternion(gjm.ee_attitude),
             }
         )
     )
