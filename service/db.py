@@ -1,4 +1,7 @@
-"""Engine and sessions. SQLite runs in WAL mode with a busy timeout (set on every connection)."""
+"""Engine and sessions. SQLite runs in WAL mode with a busy timeout (set on every connection);
+any other database (PostgreSQL: ``postgresql+psycopg://...``) gets a pooled engine that checks
+connections before use, and transactions that PostgreSQL aborts because of a deadlock or a
+serialization failure are retried like SQLite's "database is locked"."""
 
 from __future__ import annotations
 
@@ -12,31 +15,43 @@ from typing import Any, ParamSpec, TypeVar
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import make_url
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 P = ParamSpec("P")
 T = TypeVar("T")
 
 LOCK_RETRIES = 8
+CONNECT_TIMEOUT_S = 10
+
+
+# PostgreSQL SQLSTATEs of transactions worth running again: serialization_failure,
+# deadlock_detected, lock_not_available
+RETRYABLE_SQLSTATES = frozenset({"40001", "40P01", "55P03"})
 
 
 def is_locked(exc: BaseException) -> bool:
-    """SQLite's "database is locked" / "database is busy" (the busy timeout ran out)."""
+    """SQLite's "database is locked" / "database is busy" (the busy timeout ran out), or a
+    PostgreSQL transaction aborted by a deadlock or a serialization failure."""
+    if not isinstance(exc, DBAPIError):
+        return False
+    if getattr(exc.orig, "sqlstate", None) in RETRYABLE_SQLSTATES:
+        return True
     return isinstance(exc, OperationalError) and any(w in str(exc.orig).lower() for w in ("locked", "busy"))
 
 
 def retry_locked(fn: Callable[P, T]) -> Callable[P, T]:
     """Run ``fn`` again (in a new transaction: it must open its own session) when SQLite says the
-    database is locked, with jittered exponential backoff; the busy timeout already waited on
-    every attempt, so this only covers lock upgrades that SQLite refuses to wait for."""
+    database is locked or PostgreSQL aborted the transaction (deadlock, serialization failure),
+    with jittered exponential backoff; SQLite's busy timeout already waited on every attempt, so
+    this only covers lock upgrades that SQLite refuses to wait for."""
 
     @functools.wraps(fn)
     def wrapper(*args: P.args, **kwargs: P.kwargs) -> T:
         for attempt in range(LOCK_RETRIES):
             try:
                 return fn(*args, **kwargs)
-            except OperationalError as exc:
+            except DBAPIError as exc:
                 if not is_locked(exc) or attempt == LOCK_RETRIES - 1:
                     raise
                 time.sleep(min(0.02 * 2**attempt, 1.0) * (0.5 + random.random()))
@@ -52,11 +67,18 @@ def ensure_sqlite_dir(url: str) -> None:
 
 
 def make_engine(url: str, busy_timeout_ms: int = 10_000) -> Engine:
+    """An engine for ``url``. ``busy_timeout_ms`` only applies to SQLite."""
     ensure_sqlite_dir(url)
-    is_sqlite = make_url(url).get_backend_name() == "sqlite"
+    parsed = make_url(url)
+    is_sqlite = parsed.get_backend_name() == "sqlite"
     kwargs: dict[str, Any] = {}
     if is_sqlite:
         kwargs["connect_args"] = {"check_same_thread": False, "timeout": busy_timeout_ms / 1000.0}
+    else:
+        # a server restart or a dropped connection must not fail the next request or heartbeat
+        kwargs["pool_pre_ping"] = True
+        if parsed.get_backend_name() == "postgresql" and "connect_timeout" not in parsed.query:
+            kwargs["connect_args"] = {"connect_timeout": CONNECT_TIMEOUT_S}  # /readyz answers instead of hanging
     engine = create_engine(url, **kwargs)
     if is_sqlite:
 

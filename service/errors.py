@@ -9,8 +9,10 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import DataError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from service.db import is_locked
 
 PROBLEM_JSON = "application/problem+json"
 PROBLEM_BASE = "https://spacearm.example/problems/"
@@ -154,10 +156,20 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(OperationalError)
     async def _database_busy(request: Request, exc: OperationalError) -> JSONResponse:
-        # last resort: writes retry on a locked SQLite database, so this is rare; never leak the driver message
-        if "locked" in str(exc.orig) or "busy" in str(exc.orig):
+        # last resort: writes retry on a locked SQLite database (or a PostgreSQL deadlock /
+        # serialization failure), so this is rare; never leak the driver message
+        if is_locked(exc):
             return problem(503, "the database is busy; retry", instance=request.url.path, headers={"Retry-After": "1"})
         return problem(500, "unexpected error: OperationalError", instance=request.url.path)
+
+    @app.exception_handler(DataError)
+    async def _unstorable(request: Request, exc: DataError) -> JSONResponse:
+        # PostgreSQL refuses some values SQLite stores, above all text with NUL characters
+        if "NUL" in str(exc.orig) or "\\u0000" in str(exc.orig):
+            where = "path" if "\x00" in request.url.path else "query" if "\x00" in str(request.query_params) else "body"
+            msg = "text must not contain NUL characters (\\u0000)"
+            return problem(422, f"{where}: {msg}", instance=request.url.path, errors=[field_error([where], msg)])
+        return problem(500, "unexpected error: DataError", instance=request.url.path)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

@@ -1,9 +1,11 @@
 """The job queue: the ``tuning_jobs`` table.
 
-- ``claim``: one statement ``UPDATE ... WHERE id = (SELECT ... LIMIT 1) AND <claimable>``; the
-  condition is repeated on the outer UPDATE, so if two workers pick the same id only one update
-  matches (SQLite also serialises writers). A job is claimable when it is queued, or running
-  with an expired lease (its worker died) and attempts left.
+- ``claim``: one statement ``UPDATE ... WHERE id = (SELECT ... LIMIT 1 FOR UPDATE SKIP LOCKED)
+  AND <claimable> RETURNING``; the condition is repeated on the outer UPDATE, so if two workers
+  pick the same id only one update matches (SQLite serialises writers; on PostgreSQL the
+  subquery skips rows other workers have locked, so concurrent workers take different jobs). A
+  job is claimable when it is queued, or running with an expired lease (its worker died) and
+  attempts left.
 - ``heartbeat``: renews the lease and writes progress, only while this worker still owns the
   job; it returns whether cancellation was requested or the lease was lost.
 - ``finish``/``fail``/``cancelled``/``requeue``: final transitions, again only by the owner.
@@ -79,8 +81,16 @@ def claim(db: Database, worker_id: str, lease_seconds: float) -> Claim | None:
     """Claim the oldest claimable job for ``worker_id``; None if there is none."""
     expire_exhausted(db)
     now = utcnow()
+    # FOR UPDATE SKIP LOCKED (PostgreSQL; SQLite has no row locks and leaves it out): a worker
+    # skips a row another worker is claiming right now and takes the next one, instead of
+    # waiting for it and then finding it taken (which would look like an empty queue).
     candidate = (
-        select(TuningJob.id).where(_claimable(now)).order_by(TuningJob.created_at, TuningJob.id).limit(1).scalar_subquery()
+        select(TuningJob.id)
+        .where(_claimable(now))
+        .order_by(TuningJob.created_at, TuningJob.id)
+        .limit(1)
+        .with_for_update(skip_locked=True)
+        .scalar_subquery()
     )
     stmt = (
         update(TuningJob)

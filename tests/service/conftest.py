@@ -1,5 +1,5 @@
 """Service tests run over real HTTP: uvicorn and worker subprocesses (``python -m service``) on
-free loopback ports, each stack with its own SQLite file."""
+free loopback ports, each stack with its own SQLite file (or a given database URL, e.g. PostgreSQL)."""
 
 from __future__ import annotations
 
@@ -60,14 +60,16 @@ class Proc:
 
 
 class Stack:
-    """One SQLite database with an API process and any number of workers."""
+    """One database (a SQLite file unless ``database_url`` is given) with an API process and any
+    number of workers."""
 
-    def __init__(self, directory: Path, lease_seconds: float = 5.0) -> None:
+    def __init__(self, directory: Path, lease_seconds: float = 5.0, database_url: str | None = None) -> None:
         self.dir = directory
         self.db_path = directory / "spacearm.db"
+        self.database_url = database_url or f"sqlite:///{self.db_path}"
         self.env = {
             **os.environ,
-            "SPACEARM_DATABASE_URL": f"sqlite:///{self.db_path}",
+            "SPACEARM_DATABASE_URL": self.database_url,
             "SPACEARM_WORKER_POLL_SECONDS": "0.1",
             "SPACEARM_JOB_LEASE_SECONDS": str(lease_seconds),
             "PYTHONUNBUFFERED": "1",
@@ -121,8 +123,8 @@ class Stack:
 def make_stack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Callable[..., Stack]]:
     stacks: list[Stack] = []
 
-    def make(lease_seconds: float = 5.0) -> Stack:
-        stack = Stack(tmp_path_factory.mktemp("stack"), lease_seconds)
+    def make(lease_seconds: float = 5.0, database_url: str | None = None) -> Stack:
+        stack = Stack(tmp_path_factory.mktemp("stack"), lease_seconds, database_url)
         stacks.append(stack)
         return stack
 

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import signal
-import sqlite3
 from collections.abc import Callable
 
 import httpx
+from sqlalchemy import text
 
+from service.db import make_engine
 from tests.service.conftest import PAPER_TASK, Stack, job_body, wait_for, wait_status
 
 # A job long enough to be interrupted (about 0.03 s per generation, 1000 generations, twice).
@@ -98,8 +99,9 @@ def test_job_validation_and_idempotency(client: httpx.Client) -> None:
     wait_status(client, first.json()["id"], ("succeeded",))
 
 
-def test_worker_killed_mid_job_another_finishes(make_stack: Callable[..., Stack]) -> None:
-    stack = make_stack(lease_seconds=1.0)
+def worker_killed_mid_job_another_finishes(stack: Stack) -> None:
+    """SIGKILL the worker of a running job; once its lease expires a second worker finishes the
+    job, exactly once. ``stack``: lease seconds short, nothing started yet (any database)."""
     stack.start_api()
     first = stack.start_worker()
     with stack.client() as client:
@@ -118,9 +120,17 @@ def test_worker_killed_mid_job_another_finishes(make_stack: Callable[..., Stack]
     dead, second = (w.log.read_text() for w in stack.workers)
     assert dead.count("claimed") == 1 and f"job {job['id']}: " not in dead
     assert second.count("claimed") == 1 and second.count(f"job {job['id']}: succeeded") == 1
-    with sqlite3.connect(stack.db_path) as con:
-        rows = con.execute("SELECT status, attempts, result IS NOT NULL, lease_owner FROM tuning_jobs").fetchall()
-    assert rows == [("succeeded", 2, 1, None)]
+    engine = make_engine(stack.database_url)
+    try:
+        with engine.connect() as conn:
+            rows = conn.execute(text("SELECT status, attempts, result IS NOT NULL, lease_owner FROM tuning_jobs")).all()
+    finally:
+        engine.dispose()
+    assert [tuple(r) for r in rows] == [("succeeded", 2, 1, None)]  # PostgreSQL says True: == 1
+
+
+def test_worker_killed_mid_job_another_finishes(make_stack: Callable[..., Stack]) -> None:
+    worker_killed_mid_job_another_finishes(make_stack(lease_seconds=1.0))
 
 
 def test_sigterm_requeues_the_running_job(make_stack: Callable[..., Stack]) -> None:
@@ -140,20 +150,29 @@ def test_sigterm_requeues_the_running_job(make_stack: Callable[..., Stack]) -> N
         assert wait_status(client, job["id"], ("cancelled",))["attempts"] == 1
 
 
-def test_two_workers_share_the_queue(make_stack: Callable[..., Stack]) -> None:
-    stack = make_stack()
-    stack.start_api()
+def two_workers_share_the_queue(stack: Stack, jobs: int = 6) -> list[str]:
+    """Two workers, then ``jobs`` submitted: every job succeeds after exactly one claim and both
+    workers take part. Returns the job ids. ``stack``: API started, no workers yet."""
+    workers = [stack.start_worker(), stack.start_worker()]
+    wait_for(lambda: all("polling" in w.log.read_text() for w in workers))  # both up: neither drains the queue alone
     with stack.client() as client:
-        ids = [client.post("/v1/tuning-jobs", json=job_body(population=6, generations=10)).json()["id"] for _ in range(6)]
-        stack.start_worker()
-        stack.start_worker()
+        ids = [client.post("/v1/tuning-jobs", json=job_body(population=6, generations=10)).json()["id"] for _ in range(jobs)]
         for job_id in ids:
             done = wait_status(client, job_id, ("succeeded", "failed"), timeout=60)
             assert done["status"] == "succeeded" and done["attempts"] == 1
     logs = [w.log.read_text() for w in stack.workers]
+    for job_id in ids:  # every job claimed exactly once, by one worker
+        assert sum(log.count(f"job {job_id} claimed") for log in logs) == 1
     claimed = [log.count("claimed") for log in logs]
-    assert sum(claimed) == 6  # every job claimed exactly once
+    assert sum(claimed) == jobs
     assert all(c >= 1 for c in claimed), claimed  # both workers took part
+    return ids
+
+
+def test_two_workers_share_the_queue(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack()
+    stack.start_api()
+    two_workers_share_the_queue(stack)
 
 
 def test_data_survives_api_restart(make_stack: Callable[..., Stack]) -> None:

@@ -19,7 +19,7 @@ def _db(tmp_path: Path) -> Database:
     return Database(url)
 
 
-def _add_jobs(db: Database, n: int, max_attempts: int = 3) -> list[str]:
+def add_jobs(db: Database, n: int, max_attempts: int = 3) -> list[str]:
     with db.session() as s:
         jobs = [
             TuningJob(status="queued", request={}, attempts=0, max_attempts=max_attempts, cancel_requested=False)
@@ -30,9 +30,8 @@ def _add_jobs(db: Database, n: int, max_attempts: int = 3) -> list[str]:
         return [j.id for j in jobs]
 
 
-def test_concurrent_claims_are_exclusive(tmp_path: Path) -> None:
-    db = _db(tmp_path)
-    ids = _add_jobs(db, 40)
+def claim_concurrently(db: Database, threads: int = 8) -> list[str]:
+    """Threads claim until the queue is empty; returns every claimed id (duplicates kept)."""
     claimed: list[str] = []
     lock = threading.Lock()
 
@@ -41,18 +40,24 @@ def test_concurrent_claims_are_exclusive(tmp_path: Path) -> None:
             with lock:
                 claimed.append(c.job_id)
 
-    threads = [threading.Thread(target=worker, args=(f"w{i}",)) for i in range(8)]
-    for t in threads:
+    pool = [threading.Thread(target=worker, args=(f"w{i}",)) for i in range(threads)]
+    for t in pool:
         t.start()
-    for t in threads:
+    for t in pool:
         t.join()
-    assert sorted(claimed) == sorted(ids)  # each exactly once
+    return claimed
+
+
+def test_concurrent_claims_are_exclusive(tmp_path: Path) -> None:
+    db = _db(tmp_path)
+    ids = add_jobs(db, 40)
+    assert sorted(claim_concurrently(db)) == sorted(ids)  # each exactly once
     db.dispose()
 
 
 def test_expired_lease_requeues_until_attempts_exhausted(tmp_path: Path) -> None:
     db = _db(tmp_path)
-    (job_id,) = _add_jobs(db, 1, max_attempts=2)
+    (job_id,) = add_jobs(db, 1, max_attempts=2)
     first = queue.claim(db, "a", 0.05)
     assert first is not None and first.attempts == 1
     assert queue.claim(db, "b", 0.05) is None  # lease still held
@@ -71,7 +76,7 @@ def test_expired_lease_requeues_until_attempts_exhausted(tmp_path: Path) -> None
 
 def test_cancel_flags_running_job(tmp_path: Path) -> None:
     db = _db(tmp_path)
-    (job_id,) = _add_jobs(db, 1)
+    (job_id,) = add_jobs(db, 1)
     c = queue.claim(db, "a", 60)
     assert c is not None
     assert queue.heartbeat(db, c, 60, {"generation": 1}) == "ok"
