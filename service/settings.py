@@ -23,6 +23,9 @@ class Settings(BaseSettings):
     )
     max_queued_jobs: int = Field(default=100, ge=1, description="queued tuning jobs beyond which submissions get 429")
     max_body_bytes: int = Field(default=1024 * 1024, ge=1, description="request bodies above this get 413")
+    max_replay_steps: int = Field(
+        default=2000, ge=0, description="plans with more steps are not replayed synchronously (replay costs ~7 ms/step)"
+    )
     dask_scheduler: str | None = Field(
         default=None,
         description="address of a Dask scheduler (e.g. tcp://10.0.0.5:8786); set, workers spread each GA "

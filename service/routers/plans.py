@@ -14,7 +14,7 @@ from sqlalchemy import func, select
 from engine import PlanResult, make_inverse, plan, replay
 from engine.errors import ParameterError
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
-from service.deps import SessionDep
+from service.deps import SessionDep, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
 from service.models import Plan
 from service.schemas import PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
@@ -36,12 +36,18 @@ def check_method(name: str, params: dict[str, float], loc: tuple[str, ...] = ("b
 REPLAY_MAX_TRAVEL_RAD = 200.0
 
 
-def replay_skip_reason(result: PlanResult) -> str | None:
-    """Why a plan is not worth replaying, or None. ``solve_ivp`` (tight tolerances) takes time in
-    proportion to how far the joints turn: a diverged plan with absurd joint rates (found by the
-    fuzz: 1e10 deg/s) would keep a worker thread busy for minutes, so it is not replayed."""
+def replay_skip_reason(result: PlanResult, max_steps: int) -> str | None:
+    """Why a plan is not replayed synchronously, or None. ``solve_ivp`` (tight tolerances) costs
+    about 7 ms per step and more the further the joints turn: a plan longer than ``max_steps``
+    (``SPACEARM_MAX_REPLAY_STEPS``) or a diverged plan with absurd joint rates (found by the fuzz:
+    1e10 deg/s) would keep the request busy for minutes."""
     qd = np.nan_to_num(np.abs(result.qd), nan=np.inf)
     dt = np.diff(result.t)
+    if dt.shape[0] > max_steps:
+        return (
+            f"not replayed: {dt.shape[0]} steps, more than the {max_steps} replayed synchronously "
+            "(SPACEARM_MAX_REPLAY_STEPS); replay it with the engine's replay() offline"
+        )
     if qd.shape[0] < dt.shape[0] or dt.shape[0] == 0:
         return None
     travel = float(np.sum(np.max(qd[: dt.shape[0]], axis=1) * dt))
@@ -85,7 +91,7 @@ def plan_out(p: Plan) -> PlanOut:
     summary="Plan a Cartesian task (synchronous) and store the plan",
     responses=responses(404, 422),
 )
-def create_plan(body: PlanRequest, session: SessionDep, response: Response) -> PlanOut:
+def create_plan(body: PlanRequest, session: SessionDep, settings: SettingsDep, response: Response) -> PlanOut:
     robot_id, model = resolve_robot(session, body.robot_id, body.robot)
     task = build_task(model, body.task)
     inverse = check_method(body.method.name, body.method.params)
@@ -100,7 +106,7 @@ def create_plan(body: PlanRequest, session: SessionDep, response: Response) -> P
             aggregation=body.aggregation,
             attitude_term=body.attitude_term,
         )
-        skipped = replay_skip_reason(result) if body.replay else None
+        skipped = replay_skip_reason(result, settings.max_replay_steps) if body.replay else None
         checked = replay(model, result) if body.replay and skipped is None else None
         elapsed = time.perf_counter() - start
     except ParameterError as exc:

@@ -214,3 +214,12 @@ def test_plan_objective_attitude_term(client: httpx.Client) -> None:
     assert printed["objective_b"] == pytest.approx(expected)
     assert 0.002 < printed["objective_b"] < angle["objective_b"]
     _problem(client.post("/v1/plans", json={**body, "attitude_term": "rpy"}), 422)
+
+
+def test_long_plans_are_not_replayed_synchronously(client: httpx.Client) -> None:
+    body = {"robot_id": "table1", "task": {**PAPER_TASK, "dt_s": 0.005}, "method": {"name": "dls"}, "replay": True}
+    r = client.post("/v1/plans", json=body)
+    assert r.status_code == 201, r.text
+    replay = r.json()["replay"]
+    assert replay["success"] is False and "3000 steps" in replay["message"] and "SPACEARM_MAX_REPLAY_STEPS" in replay["message"]
+    assert len(r.json()["trajectory"]["t_s"]) == 3001
