@@ -5,18 +5,20 @@ future):
   ``Content-Length`` before anything is read, and by counting the bytes as they arrive when there
   is no ``Content-Length`` (chunked uploads).
 - ``BearerAuthMiddleware``: with ``SPACEARM_API_KEYS`` set, every request under ``/v1`` needs
-  ``Authorization: Bearer <key>`` (401 with ``WWW-Authenticate: Bearer`` otherwise). Keys are
+  ``Authorization: Bearer <key>`` (401 with ``WWW-Authenticate: Bearer`` otherwise); the web
+  pages need the sign-in cookie set by ``POST /login`` (GETs under ``/v1`` accept it too). Keys are
   compared with :func:`hmac.compare_digest` against every configured key and never logged.
-  ``/healthz``, ``/readyz``, ``/openapi.json``, ``/docs`` and the HTML pages outside ``/v1``
-  stay open.
+  ``/healthz``, ``/readyz``, ``/openapi.json``, ``/docs`` and ``/login`` stay open.
 """
 
 from __future__ import annotations
 
 import hmac
 import logging
+from urllib.parse import quote
 
 from fastapi import FastAPI
+from starlette.responses import RedirectResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.errors import BodyTooLargeError, field_error, problem
@@ -63,8 +65,29 @@ class BodyLimitMiddleware:
             await response(scope, receive, send)
 
 
+#: Cookie that carries an API key for the web pages (set by ``POST /login``: HttpOnly,
+#: SameSite=Strict, so other sites cannot make a browser send it).
+KEY_COOKIE = "spacearm_key"
+PAGE_PREFIXES = ("/plans/", "/jobs/", "/web/")
+
+
 def _protected(path: str) -> bool:
     return path == "/v1" or path.startswith("/v1/")
+
+
+def _page(path: str) -> bool:
+    """The web pages, which read the database directly and so need a key like ``/v1``."""
+    return path == "/" or path.startswith(PAGE_PREFIXES)
+
+
+def _cookie(scope: Scope) -> bytes:
+    for name, value in scope.get("headers", []):
+        if name == b"cookie":
+            for part in value.split(b";"):
+                key, _, token = part.strip().partition(b"=")
+                if key == KEY_COOKIE.encode():
+                    return token.strip()
+    return b""
 
 
 class BearerAuthMiddleware:
@@ -79,7 +102,9 @@ class BearerAuthMiddleware:
         return ok
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or not self.keys or not _protected(scope.get("path", "")):
+        path = scope.get("path", "") if scope["type"] == "http" else ""
+        api, web = _protected(path), _page(path)
+        if not self.keys or not (api or web):
             await self.app(scope, receive, send)
             return
         header = b""
@@ -90,6 +115,16 @@ class BearerAuthMiddleware:
         scheme, _, token = header.partition(b" ")
         if scheme.lower() == b"bearer" and token.strip() and self._valid(token.strip()):
             await self.app(scope, receive, send)
+            return
+        # The sign-in cookie opens the pages, and reads under /v1 (the pages' figures and job
+        # polling); writes under /v1 still need the Authorization header.
+        cookie = _cookie(scope)
+        read = scope.get("method") in ("GET", "HEAD")
+        if cookie and self._valid(cookie) and (web or read):
+            await self.app(scope, receive, send)
+            return
+        if web and read:
+            await RedirectResponse(f"/login?next={quote(path)}", status_code=303)(scope, receive, send)
             return
         challenge = 'Bearer realm="spacearm"' + ("" if not header else ', error="invalid_token"')
         detail = "missing API key: send Authorization: Bearer <key>" if not header else "invalid API key"

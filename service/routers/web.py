@@ -9,6 +9,7 @@ exactly the validation, limits and authentication of ``POST /v1/plans`` and
 
 from __future__ import annotations
 
+import hmac
 import json
 import math
 from pathlib import Path
@@ -26,6 +27,7 @@ from service import figures
 from service.db import Database
 from service.models import Plan, Robot, TuningJob
 from service.routers.tasks import PRESETS
+from service.security import KEY_COOKIE
 
 router = APIRouter(include_in_schema=False)
 
@@ -175,6 +177,10 @@ async def _form(request: Request) -> dict[str, str]:
 
 async def _forward(request: Request, path: str, body: dict[str, Any]) -> httpx.Response:
     headers = {k: v for k, v in request.headers.items() if k.lower() in FORWARDED_HEADERS}
+    key = request.cookies.get(KEY_COOKIE)
+    if key and "authorization" not in {k.lower() for k in headers}:
+        # The sign-in cookie (SameSite=Strict, so only our own pages send it) stands for the key.
+        headers["authorization"] = f"Bearer {key}"
     transport = httpx.ASGITransport(app=request.app)
     async with httpx.AsyncClient(transport=transport, base_url="http://spacearm.internal", timeout=600) as client:
         return await client.post(path, json=body, headers=headers)
@@ -221,6 +227,42 @@ def _problem_text(response: httpx.Response) -> str:
     errors = problem.get("errors") or []
     lines = [str(problem.get("detail", problem))] + [f"{e.get('field')}: {e.get('message')}" for e in errors]
     return "\n".join(lines)
+
+
+@router.get("/login", response_class=HTMLResponse)
+def login_page(next: str = "/") -> HTMLResponse:
+    return page("login.html", next=_local(next))
+
+
+@router.post("/login")
+async def login(request: Request) -> Response:
+    """Check a key and keep it in an HttpOnly, SameSite=Strict cookie for the pages."""
+    form = await _form(request)
+    key = form.get("key", "").strip()
+    target = _local(form.get("next", "/"))
+    keys = [k.encode() for k in request.app.state.settings.keys()]  # noqa: SIM118
+    valid = False
+    for known in keys:  # every key compared, in constant time
+        valid |= hmac.compare_digest(key.encode(), known)
+    if not keys:
+        return RedirectResponse(target, status_code=303)  # authentication is off
+    if not valid:
+        return page("login.html", 401, next=target, error="that key is not valid")
+    response = RedirectResponse(target, status_code=303)
+    response.set_cookie(KEY_COOKIE, key, httponly=True, samesite="strict", path="/")
+    return response
+
+
+@router.get("/logout")
+def logout() -> Response:
+    response = RedirectResponse("/login", status_code=303)
+    response.delete_cookie(KEY_COOKIE, path="/")
+    return response
+
+
+def _local(target: str) -> str:
+    """Only redirect within this site."""
+    return target if target.startswith("/") and not target.startswith("//") else "/"
 
 
 @router.post("/web/plans")

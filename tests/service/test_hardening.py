@@ -13,7 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import httpx
 
-from tests.service.conftest import Stack, job_body, wait_for, wait_status
+from tests.service.conftest import PAPER_TASK, Stack, job_body, wait_for, wait_status
 
 PROBLEM = "application/problem+json"
 MIB = 1024 * 1024
@@ -213,3 +213,38 @@ def test_job_failing_on_every_attempt_ends_failed(make_stack: Callable[..., Stac
         assert "attempts" in failed["error"] and failed["finished_at"]
         r = client.get(f"/v1/tuning-jobs/{job['id']}/result")
         assert r.status_code == 409 and "attempts" in r.json()["detail"]
+
+
+def test_web_pages_need_the_sign_in_cookie_when_keys_are_on(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack()
+    stack.env["SPACEARM_API_KEYS"] = ",".join(KEYS)
+    stack.start_api()
+    auth = {"Authorization": f"Bearer {KEYS[0]}"}
+    with stack.client() as client:
+        plan = client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK, "replay": False}, headers=auth).json()
+        # Pages read the database directly: without a key they send the browser to sign in.
+        for path in ("/", f"/plans/{plan['id']}"):
+            r = client.get(path, follow_redirects=False)
+            assert r.status_code == 303 and r.headers["location"].startswith("/login"), path
+        assert client.get("/login").status_code == 200
+        bad = client.post("/login", data={"key": "nope", "next": "/"}, follow_redirects=False)
+        assert bad.status_code == 401 and "spacearm_key" not in bad.headers.get("set-cookie", "")
+        ok = client.post("/login", data={"key": KEYS[1], "next": "https://evil.example/"}, follow_redirects=False)
+        assert ok.status_code == 303 and ok.headers["location"] == "/"  # no open redirect
+        cookie = ok.headers["set-cookie"]
+        assert "httponly" in cookie.lower() and "samesite=strict" in cookie.lower()
+        assert client.cookies.get("spacearm_key") == KEYS[1]  # the client keeps it, like a browser
+        assert client.get(f"/plans/{plan['id']}").status_code == 200
+        # The cookie opens reads under /v1 (figures, job polling) but not writes.
+        assert client.get(f"/v1/plans/{plan['id']}/figures/joint-angles").status_code == 200
+        write = client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK})
+        assert write.status_code == 401
+        # The page's own form turns the cookie into the key when it forwards to the API.
+        form = {"preset": "paper-line", "method": "dls", "dls.lambda": "0.05"}
+        submitted = client.post("/web/plans", data=form, follow_redirects=False)
+        assert submitted.status_code == 303 and submitted.headers["location"].startswith("/plans/")
+        client.cookies.clear()
+        assert client.post("/web/plans", data=form, follow_redirects=False).status_code == 401
+        client.cookies.set("spacearm_key", "wrong")
+        assert client.get("/v1/plans").status_code == 401
+        assert client.get("/", follow_redirects=False).status_code == 303
