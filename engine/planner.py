@@ -49,6 +49,8 @@ class _Trace:
     singular_values: FloatArray  # (B, N+1, m)
     det_J_g: FloatArray  # (B, N+1)
     damping: FloatArray  # (B, N+1, m)
+    p_des: FloatArray  # (N+1, 3) desired end-effector positions
+    A_des: FloatArray  # (N+1, 3, 3) desired end-effector attitudes
 
 
 def _simulate(
@@ -112,7 +114,7 @@ def _simulate(
                 w0 = np.einsum("bij,bj->bi", base_map[:, 3:], step.qd)
                 A0 = exp_so3(w0 * dt) @ A0
                 q = q + step.qd * dt
-    return _Trace(t, out_q, out_qd, out_base_p, out_base_A, out_p, out_A, out_s, out_det, out_damp)
+    return _Trace(t, out_q, out_qd, out_base_p, out_base_A, out_p, out_A, out_s, out_det, out_damp, p_des, A_des)
 
 
 def _nan_svd(J: FloatArray) -> SVD:
@@ -138,8 +140,8 @@ class _Errors:
     A_des: FloatArray  # (N+1, 3, 3)
 
 
-def _errors(task: CartesianTask, trace: _Trace) -> _Errors:
-    p_des, A_des = task.desired_pose(trace.t)
+def _errors(trace: _Trace) -> _Errors:
+    p_des, A_des = trace.p_des, trace.A_des
     dp = trace.ee_position - p_des
     finite = np.all(np.isfinite(trace.ee_attitude), axis=(-2, -1))
     safe = np.where(finite[..., None, None], trace.ee_attitude, np.eye(3))
@@ -240,7 +242,7 @@ def plan(
     speed limit; the arrays and metrics are returned in every case."""
     objective = Objective(weights, aggregation, attitude_term)
     trace = _simulate(model, task, inverse, 1, feedback_gain)
-    errors = _errors(task, trace)
+    errors = _errors(trace)
     metrics = _batch_metrics(task, trace, errors, objective).item(0)
     success, message = _verdict(metrics, position_tolerance, attitude_tolerance)
     return PlanResult(
@@ -329,7 +331,7 @@ def plan_batch(
         stop = min(total, start + chunk)
         inverse = make_inverse(method, **{k: v[start:stop] for k, v in columns.items()})
         trace = _simulate(model, task, inverse, stop - start, feedback_gain)
-        parts.append(_batch_metrics(task, trace, _errors(task, trace), objective))
+        parts.append(_batch_metrics(task, trace, _errors(trace), objective))
     return BatchResult(method=method, params=columns, metrics=_concat(parts))
 
 

@@ -24,7 +24,7 @@ from sqlalchemy import select
 
 from engine.inverses import METHODS
 from service import figures
-from service.db import Database
+from service.deps import get_db
 from service.models import Plan, Robot, TuningJob
 from service.routers.tasks import PRESETS
 from service.security import KEY_COOKIE
@@ -83,13 +83,8 @@ def method_forms() -> list[dict[str, Any]]:
     ]
 
 
-def _db(request: Request) -> Database:
-    db: Database = request.app.state.db
-    return db
-
-
 def index_context(request: Request) -> dict[str, Any]:
-    with _db(request).session() as s:
+    with get_db(request).session() as s:
         robots = s.scalars(select(Robot).order_by(Robot.created_at, Robot.id).limit(50)).all()
         plans = s.execute(
             select(Plan.id, Plan.robot_id, Plan.method, Plan.success, Plan.metrics, Plan.created_at)
@@ -124,7 +119,7 @@ def index(request: Request) -> HTMLResponse:
 
 @router.get("/plans/{plan_id}", response_class=HTMLResponse)
 def plan_page(plan_id: str, request: Request) -> HTMLResponse:
-    with _db(request).session() as s:
+    with get_db(request).session() as s:
         row = s.execute(
             select(
                 Plan.id,
@@ -153,7 +148,7 @@ def plan_page(plan_id: str, request: Request) -> HTMLResponse:
 
 @router.get("/jobs/{job_id}", response_class=HTMLResponse)
 def job_page(job_id: str, request: Request) -> HTMLResponse:
-    with _db(request).session() as s:
+    with get_db(request).session() as s:
         job = s.get(TuningJob, job_id)
         if job is None:
             return page("error.html", 404, title="Tuning job not found", detail=f"tuning job {job_id!r} does not exist")
