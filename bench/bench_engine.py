@@ -1,91 +1,169 @@
-"""Engine benchmark: time per plan-step of `plan`, `plan_batch` (batches 1, 16, 64, 256) and a
-Pinocchio-based reference loop doing the same GJM + adaptive inverse, as ratios in one run.
+"""Engine benchmark, as ratios against an external anchor measured in the same run (medians of
+several rounds): µs per plan-step of `plan`, `plan_batch` (B = 1, 64, 256, on 1 thread and on
+every core), paper-scale `tune` and `compare`, the replay of the paper plan, against
 
-Run: `make bench` (or `.venv/bin/python bench/bench_engine.py`). Needs the test extras (pin).
+- the anchor: the planner loop written with Pinocchio's own functions (frame Jacobian,
+  centroidal map, `np.linalg.svd`, eq. 16, `pin.integrate`) doing the same base-attitude step
+  (fourth-order Magnus), checked to reproduce `engine.plan` to 1e-12 rad;
+- the lean Pinocchio loop of the issue (the same, but one explicit Euler step of the base per
+  plan step: one centroidal map per step instead of two).
+
+Then the peak RSS of the largest tuning job the API accepts (population 1000, a 20,000-step task,
+a 12-joint robot; its first generation), in a fresh process.
+
+Run: `make bench` (or `.venv/bin/python bench/bench_engine.py [--quick]`). Needs the test extras (pin).
 """
 
 from __future__ import annotations
 
+import argparse
+import json
+import math
+import statistics
+import subprocess
 import sys
+import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from pinocchio_oracle import build_pinocchio_model, pinocchio_configuration
+import pinocchio as pin
+from pinocchio_oracle import adaptive_joint_rates, build_pinocchio_model, pinocchio_configuration, pinocchio_plan
 
-from engine import make_inverse, paper_task, plan, plan_batch, table1_robot
-from engine.inverses import thin_svd
+from engine import compare, make_inverse, paper_task, plan, plan_batch, replay, table1_robot, tune, warm_up
+from engine.planner import default_threads
 
 LAM_MAX, EPSILON = 0.0571, 0.0677
 
 
-def _best_of(fn, repeat: int) -> float:
-    best = float("inf")
-    for _ in range(repeat):
+def median_time(fn: Callable[[], object], rounds: int) -> float:
+    times = []
+    for _ in range(rounds):
         start = time.perf_counter()
         fn()
-        best = min(best, time.perf_counter() - start)
-    return best
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
 
 
-def pinocchio_reference_plan(pm, frame_id, task, inverse) -> np.ndarray:
-    """The planner loop written on Pinocchio: GJM from the frame Jacobian and the centroidal
-    momentum matrix, the same adaptive inverse, free-flyer integration with pin.integrate."""
-    import pinocchio as pin
-
+def pinocchio_euler_plan(pm: pin.Model, frame_id: int, q0: np.ndarray, twists: np.ndarray, dt: float) -> np.ndarray:
+    """The issue's lean loop: frame Jacobian, centroidal map, eq. 16, one `pin.integrate` of the
+    base twist and joint rates per step (explicit Euler of the base)."""
     data = pm.createData()
-    q_pin = pinocchio_configuration(task.q0, np.zeros(3), np.eye(3))
-    twists = task.step_twists()
-    qs = np.empty((task.n_steps + 1, task.q0.shape[0]))
-    for k in range(task.n_steps + 1):
-        pin.forwardKinematics(pm, data, q_pin)
+    q_pin = pinocchio_configuration(q0, np.zeros(3), np.eye(3))
+    qs = np.empty((twists.shape[0], q0.shape[0]))
+    for k in range(twists.shape[0]):
         J = pin.computeFrameJacobian(pm, data, q_pin, frame_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         Ag = pin.computeCentroidalMap(pm, data, q_pin)
         base_map = -np.linalg.solve(Ag[:, :6], Ag[:, 6:])
-        J_g = J[:, 6:] + J[:, :6] @ base_map
-        qd = inverse.solve(J_g, twists[k], thin_svd(J_g)).qd
+        qd = adaptive_joint_rates(J[:, 6:] + J[:, :6] @ base_map, twists[k], LAM_MAX, EPSILON)
         qs[k] = q_pin[7:]
-        v = np.concatenate([base_map @ qd, qd])
-        q_pin = pin.integrate(pm, q_pin, v * task.dt)
+        q_pin = pin.integrate(pm, q_pin, np.concatenate([base_map @ qd, qd]) * dt)
     return qs
 
 
+RSS_SCRIPT = textwrap.dedent(
+    """
+    import json, math, sys
+    sys.path.insert(0, {tests!r})
+    import numpy as np
+    import engine
+    from engine import CartesianTask, tune
+    from engine.kinematics import as_state, forward_kinematics
+    from robots import random_robot
+    import service.jobs  # the worker's imports
+
+    engine.warm_up()
+    rng = np.random.default_rng(7)
+    robot = random_robot(rng, 12)
+    q0 = rng.uniform(-1.0, 1.0, 12)
+    fk = forward_kinematics(robot, as_state(robot, q0))
+    task = CartesianTask.from_q0(robot, q0, fk.ee_position + 0.05, fk.ee_attitude, duration=500.0, ramp_time=50.0,
+                                 dt=0.025, joint_speed_limit=math.radians(30.0))
+    def peak_mib():
+        # VmHWM is this process's own peak; ru_maxrss would include the parent's RSS at the fork
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) for line in status if line.startswith("VmHWM")) / 1024
+
+    before = peak_mib()
+    result = tune(robot, task, "adaptive", population=1000, generations=1, seed=0, callback=lambda p: True)
+    after = peak_mib()
+    print(json.dumps({{"before": before, "after": after, "evaluations": result.evaluations, "steps": task.n_steps,
+                      "seconds": result.elapsed_s}}))
+    """
+)
+
+
+def largest_job_rss() -> dict[str, float]:
+    script = RSS_SCRIPT.format(tests=str(Path(__file__).resolve().parents[1] / "tests"))
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    numbers: dict[str, float] = json.loads(out.stdout.strip().splitlines()[-1])
+    return numbers
+
+
 def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--quick", action="store_true", help="fewer rounds, no largest-job RSS run")
+    args = parser.parse_args()
+    rounds = 3 if args.quick else 7
+    warm_up()
     model = table1_robot()
     task = paper_task(model)
     steps = task.n_steps + 1
     inverse = make_inverse("adaptive", lambda_max=LAM_MAX, epsilon=EPSILON)
-    rows = []
-
-    t_plan = _best_of(lambda: plan(model, task, inverse), 5) / steps
-    rows.append(("plan (one plan)", 1, t_plan))
-    per_step = {}
-    for batch in (1, 16, 64, 256):
-        params = {"lambda_max": np.full(batch, LAM_MAX), "epsilon": np.full(batch, EPSILON)}
-        t = _best_of(lambda params=params: plan_batch(model, task, "adaptive", params), 3 if batch < 256 else 2)
-        per_step[batch] = t / (batch * steps)
-        rows.append((f"plan_batch B={batch}", batch, per_step[batch]))
-
     pm, fid = build_pinocchio_model(model)
-    ref_q = pinocchio_reference_plan(pm, fid, task, inverse)
-    t_pin = _best_of(lambda: pinocchio_reference_plan(pm, fid, task, inverse), 5) / steps
-    rows.append(("pinocchio loop (one plan)", 1, t_pin))
+    twists = task.samples.twists
 
     ours = plan(model, task, inverse)
-    agreement = float(np.abs(ours.q - ref_q).max())
+    anchor_q = pinocchio_plan(pm, fid, task.q0, twists, task.dt, LAM_MAX, EPSILON)
+    agreement = float(np.abs(ours.q - anchor_q).max())
+    t_anchor = median_time(lambda: pinocchio_plan(pm, fid, task.q0, twists, task.dt, LAM_MAX, EPSILON), rounds) / steps
+    t_euler = median_time(lambda: pinocchio_euler_plan(pm, fid, task.q0, twists, task.dt), rounds) / steps
 
-    print(f"paper task: {steps} samples per plan, adaptive damping ({LAM_MAX}, {EPSILON})")
-    print(f"{'variant':28s} {'batch':>5s} {'us/plan-step':>13s} {'speed-up vs pinocchio':>22s}")
-    for name, batch, t in rows:
-        print(f"{name:28s} {batch:5d} {t * 1e6:13.2f} {t_pin / t:22.1f}")
+    rows: list[tuple[str, float]] = []
+    rows.append(("plan (one plan)", median_time(lambda: plan(model, task, inverse), 5 * rounds) / steps))
+    threads = default_threads()
+    for batch in (1, 64, 256):
+        params = {"lambda_max": np.full(batch, LAM_MAX), "epsilon": np.full(batch, EPSILON)}
+        for n_threads in sorted({1, threads}):
+            t = median_time(lambda p=params, th=n_threads: plan_batch(model, task, "adaptive", p, threads=th), rounds)
+            rows.append((f"plan_batch B={batch}, {n_threads} thread(s)", t / (batch * steps)))
+
+    tuned = tune(model, task, "adaptive", population=40, generations=50, seed=1)
+    t_tune = median_time(lambda: tune(model, task, "adaptive", population=40, generations=50, seed=1), rounds)
+    t_compare = median_time(lambda: compare(model, task, population=40, generations=50, seed=1), max(1, rounds // 2))
+    t_replay = median_time(lambda: replay(model, ours), rounds)
+
+    print(f"paper task: {steps} samples per plan, adaptive damping ({LAM_MAX}, {EPSILON}); {threads} cores")
+    print(f"anchor (Pinocchio, Magnus base step) reproduces engine.plan to {agreement:.1e} rad")
+    print(f"{'variant':34s} {'µs/plan-step':>12s} {'x anchor':>9s} {'x lean Euler loop':>18s}")
+    print(f"{'Pinocchio anchor (Magnus)':34s} {t_anchor * 1e6:12.2f} {1.0:9.1f} {t_euler / t_anchor:18.1f}")
+    print(f"{'Pinocchio lean loop (Euler)':34s} {t_euler * 1e6:12.2f} {t_anchor / t_euler:9.1f} {1.0:18.1f}")
+    for name, t in rows:
+        print(f"{name:34s} {t * 1e6:12.2f} {t_anchor / t:9.1f} {t_euler / t:18.1f}")
+    tune_steps = tuned.evaluations * steps
     print(
-        f"plan_batch B=64: {per_step[64] * 1e6:.2f} us/plan-step (target <= 2), "
-        f"{t_pin / per_step[64]:.1f}x the pinocchio loop (target >= 10)"
+        f"tune, population 40 x 50 generations: {t_tune:.3f} s for {tuned.evaluations} plans "
+        f"({t_tune / tune_steps * 1e6:.2f} µs per plan-step, DEAP included): "
+        f"{t_tune / (tune_steps * t_anchor):.3f} of the anchor's time for the same plans "
+        f"({t_tune / (tune_steps * t_euler):.3f} of the lean loop's); target <= 0.05"
     )
-    print(f"joint angles, engine vs pinocchio loop: max difference {agreement:.2e} rad")
+    print(f"compare (adaptive and DLS, the same GA): {t_compare:.3f} s")
+    print(f"replay of the paper plan: {t_replay * 1e3:.2f} ms ({t_replay / (steps - 1) * 1e6:.1f} µs per step)")
+    single = rows[0][1]
+    b64 = min(t for name, t in rows if name.startswith("plan_batch B=64"))
+    print(f"targets: plan_batch B=64 >= 40x the anchor: {t_anchor / b64:.1f}x; plan >= 20x: {t_anchor / single:.1f}x")
+    if not args.quick:
+        rss = largest_job_rss()
+        print(
+            f"largest accepted job (population 1000, {rss['steps']:.0f} steps, 12 joints, first generation: "
+            f"{rss['evaluations']:.0f} plans in {rss['seconds']:.0f} s): peak RSS {rss['after']:.0f} MiB "
+            f"({rss['before']:.0f} MiB before the GA; target < 300 MiB)"
+        )
+    assert math.isfinite(agreement)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """Numerical core: free-floating space robot kinematics, the generalized Jacobian,
 singularity-robust inverses, the Cartesian planner, replay and GA tuning.
 
-numpy and scipy (and DEAP for the GA); no web or database code. SI units and radians throughout.
+numpy and scipy, numba for the compiled kernels (:mod:`engine.kernels`), DEAP for the GA; no web
+or database code. SI units and radians throughout.
 """
 
 from engine.inverses import (
@@ -25,6 +26,7 @@ from engine.planner import BatchResult, PlanResult, plan, plan_batch
 from engine.replay import ReplayResult, replay
 from engine.trajectory import CartesianTask, paper_task
 from engine.tuning import Comparison, TuneProgress, TuneResult, compare, tune
+from engine.warmup import warm_up
 
 __all__ = [
     "METHODS",
@@ -60,4 +62,5 @@ __all__ = [
     "replay",
     "table1_robot",
     "tune",
+    "warm_up",
 ]

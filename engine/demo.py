@@ -21,7 +21,7 @@ def comparison_table() -> str:
         gap = replay(model, result).plan_gap_position_max * 1e3 if m.finite else float("nan")
         lines.append(
             f"{name:9s} {m.objective_b:9.5f} {m.position_error_max * 1e3:10.3f} {math.degrees(m.attitude_error_max):11.3f} "
-            f"{m.max_joint_speed_deg_s:12.2f} {m.min_singular_value:9.2e} {m.time_of_min_abs_det_J_g:13.2f} {gap:13.3f}  "
+            f"{m.max_joint_speed_deg_s:12.2f} {m.min_singular_value:9.2e} {m.time_of_min_abs_det_J_g:13.2f} {gap:13.1e}  "
             f"{'ok' if result.success else result.message}"
         )
     lines.append("Parameters are each method's defaults; GA tuning (engine.tuning) searches them.")

@@ -4,15 +4,16 @@ Every strategy maps a Jacobian ``J (..., 6, n)`` and a twist ``xdot (..., 6)`` t
 ``qd (..., n)``. Parameters may be scalars or arrays of shape ``(B,)`` matching a leading
 batch axis, so one strategy object evaluates a whole GA population at once.
 
-All SVD-based strategies are written as filters of the singular values,
-``qd = sum_i f(sigma_i) v_i u_i^T xdot``, and report an *effective damping* per singular
-direction, ``lambda_i = sqrt(sigma_i / f_i - sigma_i^2)``: the constant-damping value that
-would give the same gain (0 means undamped; for DLS it is the damping itself).
+The strategies are descriptions (a method number and its parameters); the mathematics lives
+once, in the compiled kernels of :mod:`engine.kernels.inverse` (the filters of the singular
+values, ``qd = sum_i f(sigma_i) v_i u_i^T xdot``) and :mod:`engine.kernels.svd` (the thin SVD),
+which the planner runs too. Each reports an *effective damping* per singular direction,
+``lambda_i = sqrt(sigma_i / f_i - sigma_i^2)``: the constant-damping value that would give the
+same gain (0 means undamped; for DLS it is the damping itself).
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple, Protocol
@@ -21,9 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from engine.errors import ParameterError
+from engine.kernels import inverse as inverse_kernels
+from engine.kernels import svd as svd_kernels
 from engine.spatial import FloatArray
-
-_TINY = 1e-300
 
 
 class SVD(NamedTuple):
@@ -34,62 +35,24 @@ class SVD(NamedTuple):
     Vt: FloatArray
 
 
-# thin_svd keeps its eigen route for a member only if s_{m-1} >= _GRAM_SECOND_SMALLEST s_1 and
-# s_m >= _GRAM_SMALLEST s_1 (m = min(r, c)); see its docstring for the error bounds.
-_GRAM_SECOND_SMALLEST = 1e-2
-_GRAM_SMALLEST = 1e-7
+def _jacobians(J: ArrayLike) -> tuple[FloatArray, tuple[int, ...]]:
+    arr = np.asarray(J, dtype=float)
+    if arr.ndim < 2 or arr.shape[-2] != 6 or not 1 <= arr.shape[-1] <= 12:
+        raise ValueError(f"expected Jacobians of shape (..., 6, n) with 1 <= n <= 12, got {arr.shape}")
+    lead = arr.shape[:-2]
+    flat: FloatArray = np.require(arr.reshape((-1,) + arr.shape[-2:]), np.float64, ["C", "W"])
+    return flat, lead
 
 
-@functools.cache
-def _gram_floor(m: int) -> FloatArray:
-    """Floors ``(m,)`` of ``s / s_1`` for the eigen route of :func:`thin_svd`."""
-    floor = np.zeros(m)
-    if m > 1:
-        floor[-2] = _GRAM_SECOND_SMALLEST
-    floor[-1] = _GRAM_SMALLEST
-    floor.setflags(write=False)
-    return floor
-
-
-def thin_svd(J: FloatArray) -> SVD:
-    """Thin SVD of ``J (..., r, c)`` for any leading batch shape; ``m = min(r, c)``.
-
-    On stacks of small matrices LAPACK's per-matrix cost dominates, and a symmetric
-    eigen-decomposition costs about 60 % of an SVD, so the SVD is built from the
-    eigenvectors ``E`` (descending eigenvalues) of the smaller Gram matrix, ``M M^T`` with
-    ``M = J`` if ``c >= r``, else ``M = J^T``. The rows of ``W = E^T M`` are ``s_i f_i^T``:
-    the singular values are their norms, accurate to about ``eps s_1`` like LAPACK's (the
-    squaring only enters through ``E``, to second order), and ``f_i`` is the other factor.
-    The ``f_i`` are orthogonal to about ``eps s_1^2 / (s_i s_j)``; the last one is projected
-    off the others, which leaves about ``eps (s_1 / s_{m-1})^2 <= 1e-12`` and a backward
-    error of about ``eps s_1 (s_1 / s_{m-1})``. Members outside the ``_GRAM_*`` floors,
-    with unordered singular values (near-ties) or not finite are redone with
-    ``np.linalg.svd``. Every member is computed independently of the others.
-    """
-    J = np.asarray(J, dtype=float)
-    lead, (rows, cols) = J.shape[:-2], J.shape[-2:]
-    m = min(rows, cols)
-    wide = cols >= rows
-    Jb = J.reshape((-1, rows, cols))
-    M = Jb if wide else np.swapaxes(Jb, -1, -2)  # (k, m, max(r, c))
-    with np.errstate(over="ignore", invalid="ignore"):  # huge or non-finite members are redone
-        try:
-            E = np.linalg.eigh(M @ np.swapaxes(M, -1, -2))[1][..., ::-1]
-        except np.linalg.LinAlgError:
-            E = np.zeros((Jb.shape[0], m, m))
-        W = np.swapaxes(E, -1, -2) @ M
-        s = np.sqrt((W * W).sum(axis=-1))
-        F = W / np.maximum(s, _TINY)[..., None]
-        F[:, -1] -= (np.swapaxes(F[:, :-1] @ F[:, -1, :, None], -1, -2) @ F[:, :-1])[:, 0]
-        ratio = s / np.maximum(s[:, :1], _TINY)
-    floor = _gram_floor(m)
-    ordered = ratio[:, 1:] <= ratio[:, :-1]
-    if not ((ratio >= floor).all() and ordered.all()):
-        redo = ~(np.all(ratio >= floor, axis=-1) & np.all(ordered, axis=-1))
-        U_r, s[redo], Vt_r = np.linalg.svd(Jb[redo], full_matrices=False)
-        E[redo], F[redo] = (U_r, Vt_r) if wide else (np.swapaxes(Vt_r, -1, -2), np.swapaxes(U_r, -1, -2))
-    U, Vt = (E, F) if wide else (np.swapaxes(F, -1, -2), np.swapaxes(E, -1, -2))
-    return SVD(U.reshape(lead + (rows, m)), s.reshape(lead + (m,)), Vt.reshape(lead + (m, cols)))
+def thin_svd(J: ArrayLike) -> SVD:
+    """Thin SVD of ``J (..., 6, n)`` (n = 1..12, ``m = min(6, n)``) by the compiled one-sided
+    Jacobi kernel, each member cold-started; see :mod:`engine.kernels.svd`."""
+    flat, lead = _jacobians(J)
+    batch, _, n = flat.shape
+    m = min(6, n)
+    U, s, V = np.empty((batch, 6, m)), np.empty((batch, m)), np.empty((batch, n, m))
+    svd_kernels.svd_many(flat, U, s, V)
+    return SVD(U.reshape(lead + (6, m)), s.reshape(lead + (m,)), np.swapaxes(V, -1, -2).reshape(lead + (m, n)))
 
 
 class InverseStep(NamedTuple):
@@ -103,64 +66,62 @@ class RobustInverse(Protocol):
     """A strategy mapping an end-effector twist to joint rates."""
 
     name: ClassVar[str]
+    method_id: ClassVar[int]
 
-    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
-        """Joint rates for ``J (..., 6, n)``, ``xdot (..., 6)``; ``svd`` may be precomputed."""
+    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
+        """Joint rates for ``J (..., 6, n)``, ``xdot (..., 6)``."""
         ...
 
     def params(self) -> dict[str, Any]:
         """Public parameter names (as accepted by :func:`make_inverse`) and values."""
         ...
 
-
-def _param(value: FloatArray | float) -> FloatArray:
-    """Parameter broadcastable against singular values ``(..., m)``."""
-    return np.asarray(value, dtype=float)[..., None]
-
-
-def _apply_filter(svd: SVD, xdot: FloatArray, gain: FloatArray) -> FloatArray:
-    """``sum_i gain_i v_i u_i^T xdot``."""
-    x = np.einsum("...im,...i->...m", svd.U, xdot)
-    return np.einsum("...mn,...m->...n", svd.Vt, gain * x)
+    def kernel_params(self) -> tuple[FloatArray | float, ...]:
+        """Parameter values in the kernel's order (scalars or ``(B,)`` arrays)."""
+        ...
 
 
-def _effective_damping(s: FloatArray, gain: FloatArray) -> FloatArray:
-    """``lambda`` with ``s / (s^2 + lambda^2) = gain`` (0 where undamped)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lam_sq = np.where(gain > 0.0, s / np.maximum(gain, _TINY) - s * s, 0.0)
-    return np.sqrt(np.clip(lam_sq, 0.0, None))
+def kernel_param_rows(inverse: RobustInverse, batch: int) -> FloatArray:
+    """The strategy's parameters as the kernel's ``(batch, MAX_PARAMS)`` rows."""
+    rows = np.zeros((batch, inverse_kernels.MAX_PARAMS))
+    for i, value in enumerate(inverse.kernel_params()):
+        rows[:, i] = value if isinstance(value, float) else np.broadcast_to(np.asarray(value, dtype=float), (batch,))
+    return rows
 
 
-def _damped_gain(s: FloatArray, lam: FloatArray) -> FloatArray:
-    """DLS gain ``s / (s^2 + lam^2)``; the pseudo-inverse where ``lam == 0``."""
-    denom = s * s + lam * lam
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(denom > _TINY, s / np.where(denom > _TINY, denom, 1.0), 0.0)
+def solve(inverse: RobustInverse, J: ArrayLike, xdot: ArrayLike) -> InverseStep:
+    """``inverse`` applied to ``J (..., 6, n)`` and ``xdot (..., 6)`` (leading axes broadcast;
+    array parameters run along the flattened leading axes)."""
+    J_arr = np.asarray(J, dtype=float)
+    x_arr = np.asarray(xdot, dtype=float)
+    lead = np.broadcast_shapes(J_arr.shape[:-2], x_arr.shape[:-1])
+    flat, _ = _jacobians(np.broadcast_to(J_arr, lead + J_arr.shape[-2:]))
+    x_flat = np.require(np.broadcast_to(x_arr, lead + (6,)).reshape(-1, 6), np.float64, ["C", "W"])
+    batch, _, n = flat.shape
+    m = min(6, n)
+    qd, damping, s = np.empty((batch, n)), np.empty((batch, m)), np.empty((batch, m))
+    inverse_kernels.solve_many(inverse.method_id, kernel_param_rows(inverse, batch), flat, x_flat, qd, damping, s)
+    return InverseStep(qd.reshape(lead + (n,)), damping.reshape(lead + (m,)))
 
 
 @dataclass(frozen=True)
 class PlainInverse:
-    """Undamped inverse: ``qd = J^-1 xdot`` for a square GJM (LU solve), the Moore-Penrose
-    pseudo-inverse otherwise (paper eq. 3). Joint rates are unbounded near singularities."""
+    """Undamped inverse (paper eq. 3): ``qd = J^-1 xdot`` for a square GJM, the Moore-Penrose
+    pseudo-inverse otherwise, both from the SVD (singular values below ``rcond sigma_1`` are
+    dropped). Joint rates are unbounded near singularities."""
 
     name: ClassVar[str] = "inverse"
+    method_id: ClassVar[int] = inverse_kernels.PLAIN
     rcond: float = 1e-12
 
-    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
-        m = min(J.shape[-2], J.shape[-1])
-        if J.shape[-2] == J.shape[-1]:
-            try:
-                qd = np.linalg.solve(J, xdot[..., None])[..., 0]
-                return InverseStep(qd, np.zeros(J.shape[:-2] + (m,)))
-            except np.linalg.LinAlgError:
-                pass  # exactly singular somewhere: fall through to the pseudo-inverse
-        svd = svd if svd is not None else thin_svd(J)
-        keep = svd.s > self.rcond * svd.s[..., :1]
-        gain = np.where(keep, 1.0 / np.where(keep, svd.s, 1.0), 0.0)
-        return InverseStep(_apply_filter(svd, xdot, gain), np.zeros_like(svd.s))
+    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
+        return solve(self, J, xdot)
 
     def params(self) -> dict[str, Any]:
         return {}
+
+    def kernel_params(self) -> tuple[FloatArray | float, ...]:
+        return (self.rcond,)
 
 
 @dataclass(frozen=True)
@@ -170,15 +131,17 @@ class DampedLeastSquares:
     (eq. 10). ``lam`` in the units of the singular values."""
 
     name: ClassVar[str] = "dls"
+    method_id: ClassVar[int] = inverse_kernels.DLS
     lam: FloatArray | float = 0.05
 
-    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
-        svd = svd if svd is not None else thin_svd(J)
-        lam = np.broadcast_to(_param(self.lam), svd.s.shape)
-        return InverseStep(_apply_filter(svd, xdot, _damped_gain(svd.s, lam)), np.array(lam))
+    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
+        return solve(self, J, xdot)
 
     def params(self) -> dict[str, Any]:
         return {"lambda": self.lam}
+
+    def kernel_params(self) -> tuple[FloatArray | float, ...]:
+        return (self.lam,)
 
 
 @dataclass(frozen=True)
@@ -190,18 +153,18 @@ class AdaptiveDamping:
     ``sigma_i >= epsilon``."""
 
     name: ClassVar[str] = "adaptive"
+    method_id: ClassVar[int] = inverse_kernels.ADAPTIVE
     lam_max: FloatArray | float = 0.0571
     epsilon: FloatArray | float = 0.0677
 
-    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
-        svd = svd if svd is not None else thin_svd(J)
-        lam_max, eps = _param(self.lam_max), _param(self.epsilon)
-        inside = svd.s < eps
-        lam = np.where(inside, 0.5 * lam_max * (1.0 + np.cos(np.pi * svd.s / eps)), 0.0)
-        return InverseStep(_apply_filter(svd, xdot, _damped_gain(svd.s, lam)), lam)
+    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
+        return solve(self, J, xdot)
 
     def params(self) -> dict[str, Any]:
         return {"lambda_max": self.lam_max, "epsilon": self.epsilon}
+
+    def kernel_params(self) -> tuple[FloatArray | float, ...]:
+        return (self.lam_max, self.epsilon)
 
 
 @dataclass(frozen=True)
@@ -212,27 +175,18 @@ class WeightedDLS:
     ``sigma_min < epsilon``, else 0."""
 
     name: ClassVar[str] = "wdls"
+    method_id: ClassVar[int] = inverse_kernels.WDLS
     lam_max: FloatArray | float = 0.05
     epsilon: FloatArray | float = 0.1
 
-    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
-        svd = svd if svd is not None else thin_svd(J)
-        lam_max, eps = _param(self.lam_max), _param(self.epsilon)
-        s_min = svd.s[..., -1:]
-        ratio = np.clip(s_min / eps, 0.0, 1.0)
-        lam = np.broadcast_to(lam_max * np.sqrt(1.0 - ratio * ratio), svd.s.shape)
-        return InverseStep(_apply_filter(svd, xdot, _damped_gain(svd.s, lam)), np.array(lam))
+    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
+        return solve(self, J, xdot)
 
     def params(self) -> dict[str, Any]:
         return {"lambda_max": self.lam_max, "epsilon": self.epsilon}
 
-
-def _clamp_max_abs(w: FloatArray, limit: FloatArray) -> FloatArray:
-    """Buss and Kim's ClampMaxAbs over the last axis: scale ``w`` so ``max |w_j| <= limit``."""
-    peak = np.max(np.abs(w), axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(peak > limit, limit / np.where(peak > 0.0, peak, 1.0), 1.0)
-    return w * scale
+    def kernel_params(self) -> tuple[FloatArray | float, ...]:
+        return (self.lam_max, self.epsilon)
 
 
 @dataclass(frozen=True)
@@ -247,34 +201,17 @@ class SelectivelyDampedLS:
     rate."""
 
     name: ClassVar[str] = "sdls"
+    method_id: ClassVar[int] = inverse_kernels.SDLS
     gamma_max: FloatArray | float = 1.0
 
-    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
-        svd = svd if svd is not None else thin_svd(J)
-        U, s, Vt = svd
-        gamma_max = _param(self.gamma_max)
-        s_safe = np.maximum(s, _TINY)
-        N = np.linalg.norm(U[..., :3, :], axis=-2) + np.linalg.norm(U[..., 3:, :], axis=-2)  # (..., m)
-        col_norm = np.linalg.norm(J[..., :3, :], axis=-2) + np.linalg.norm(J[..., 3:, :], axis=-2)  # (..., n)
-        M = np.einsum("...mn,...n->...m", np.abs(Vt), col_norm) / s_safe
-        gamma = np.minimum(1.0, N / np.maximum(M, _TINY)) * gamma_max  # (..., m)
-        alpha = np.einsum("...im,...i->...m", U, xdot)
-        phi = (alpha / s_safe)[..., :, None] * Vt  # (..., m, n) per-direction joint rates
-        phi_clamped = _clamp_max_abs(phi, gamma[..., None])
-        qd = _clamp_max_abs(phi_clamped.sum(axis=-2), gamma_max)
-        # Effective gain per direction, for reporting only.
-        raw = np.max(np.abs(phi), axis=-1)
-        clamped = np.max(np.abs(phi_clamped), axis=-1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(raw > 0.0, clamped / np.where(raw > 0.0, raw, 1.0), 1.0)
-        total_raw = np.max(np.abs(phi_clamped.sum(axis=-2)), axis=-1, keepdims=True)
-        total = np.max(np.abs(qd), axis=-1, keepdims=True)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = ratio * np.where(total_raw > 0.0, total / np.where(total_raw > 0.0, total_raw, 1.0), 1.0)
-        return InverseStep(qd, _effective_damping(s, ratio / s_safe))
+    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
+        return solve(self, J, xdot)
 
     def params(self) -> dict[str, Any]:
         return {"gamma_max": self.gamma_max}
+
+    def kernel_params(self) -> tuple[FloatArray | float, ...]:
+        return (self.gamma_max,)
 
 
 @dataclass(frozen=True)
@@ -286,19 +223,18 @@ class SingularValueFiltering:
     ``qd = sum_i sigma_hat_i^-1 v_i u_i^T xdot``."""
 
     name: ClassVar[str] = "svf"
+    method_id: ClassVar[int] = inverse_kernels.SVF
     sigma0: FloatArray | float = 0.01
     nu: FloatArray | float = 10.0
 
-    def solve(self, J: FloatArray, xdot: FloatArray, svd: SVD | None = None) -> InverseStep:
-        svd = svd if svd is not None else thin_svd(J)
-        s = svd.s
-        sigma0, nu = _param(self.sigma0), _param(self.nu)
-        s_hat = (s**3 + nu * s**2 + 2.0 * s + 2.0 * sigma0) / (s**2 + nu * s + 2.0)
-        gain = 1.0 / s_hat
-        return InverseStep(_apply_filter(svd, xdot, gain), _effective_damping(s, gain))
+    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
+        return solve(self, J, xdot)
 
     def params(self) -> dict[str, Any]:
         return {"sigma0": self.sigma0, "nu": self.nu}
+
+    def kernel_params(self) -> tuple[FloatArray | float, ...]:
+        return (self.sigma0, self.nu)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from typing import Literal
 import numpy as np
 
 from engine.errors import ParameterError
+from engine.kernels import plan as kp
 from engine.spatial import FloatArray
 
 Aggregation = Literal["max", "rms", "final"]
@@ -55,6 +56,7 @@ class Metrics:
     aggregation: str
     attitude_term: str
     finite: bool  # every sample finite (the plan did not diverge)
+    time_diverged: float = math.nan  # s, the sample where a diverged plan stopped
 
     @property
     def max_joint_speed_deg_s(self) -> float:
@@ -90,29 +92,17 @@ class BatchMetrics:
     aggregation: str
     attitude_term: str
     finite: np.ndarray
+    time_diverged: FloatArray
 
     def __len__(self) -> int:
         return int(self.objective_b.shape[0])
 
     def item(self, i: int) -> Metrics:
         values = {}
-        for f in fields(Metrics):
-            v = getattr(self, f.name)
-            if isinstance(v, np.ndarray):
-                v = v[i].item()
-            values[f.name] = v
+        for name in _METRIC_FIELDS:
+            v = getattr(self, name)
+            values[name] = v[i].item() if isinstance(v, np.ndarray) else v
         return Metrics(**values)
-
-
-def aggregate(errors: FloatArray, aggregation: str) -> FloatArray:
-    """Aggregate ``errors (B, N+1)`` over time: ``max``, ``rms`` or ``final``."""
-    if aggregation == "max":
-        return np.max(errors, axis=-1)
-    if aggregation == "rms":
-        return np.sqrt(np.mean(errors**2, axis=-1))
-    if aggregation == "final":
-        return errors[..., -1]
-    raise ParameterError("aggregation", f"must be one of {', '.join(AGGREGATIONS)}")
 
 
 def check_weights(weights: Sequence[float]) -> tuple[float, float]:
@@ -143,72 +133,53 @@ class Objective:
         check_attitude_term(self.attitude_term)
 
 
-def objective(
-    position_errors: FloatArray,
-    attitude_errors: FloatArray,
-    speed_ok: np.ndarray,
-    settings: Objective,
-) -> FloatArray:
-    """The paper's ``B`` per plan ``(B,)`` from per-sample position errors and the attitude term
-    chosen by ``settings`` ``(B, N+1)``; +inf where the speed limit is broken or errors are not
-    finite."""
+_METRIC_FIELDS = tuple(f.name for f in fields(Metrics))
+
+
+def objective(metrics: BatchMetrics | Metrics, settings: Objective) -> FloatArray:
+    """The paper's ``B`` per plan from aggregated errors: ``w1 dp + w2 dp_phi`` with the
+    aggregation and attitude term of ``settings``; +inf where the speed limit is broken or the
+    plan is not finite."""
     w1, w2 = settings.weights
-    b = w1 * aggregate(position_errors, settings.aggregation) + w2 * aggregate(attitude_errors, settings.aggregation)
-    return np.where(speed_ok & np.isfinite(b), b, np.inf)
+    position = np.asarray(getattr(metrics, f"position_error_{settings.aggregation}"), dtype=float)
+    term = "attitude_error" if settings.attitude_term == "angle" else "coupled_error"
+    attitude = np.asarray(getattr(metrics, f"{term}_{settings.aggregation}"), dtype=float)
+    b = w1 * position + w2 * attitude
+    ok = np.asarray(metrics.joint_speed_limit_respected, dtype=bool) & np.isfinite(b)
+    result: FloatArray = np.where(ok, b, np.inf)
+    return result
 
 
-def compute_metrics(
-    t: FloatArray,
-    position_errors: FloatArray,
-    attitude_errors: FloatArray,
-    coupled_errors: FloatArray,
-    joint_speed_peak: FloatArray,
-    sigma_min: FloatArray,
-    abs_det: FloatArray,
-    joint_speed_limit: float,
-    settings: Objective,
-) -> BatchMetrics:
-    """Metrics of ``B`` plans from per-sample series ``(B, N+1)`` (position error m, attitude
-    angle rad, eq. 18 coupled error m rad) and per-joint peak speeds ``joint_speed_peak (B, n)``
-    (rad/s, absolute); ``settings`` says how ``B`` is formed."""
-    finite = (
-        np.all(np.isfinite(position_errors), axis=-1)
-        & np.all(np.isfinite(attitude_errors), axis=-1)
-        & np.all(np.isfinite(joint_speed_peak), axis=-1)
-    )
-    peak = np.where(np.isfinite(joint_speed_peak), joint_speed_peak, np.inf)
-    max_speed = np.max(peak, axis=-1)
+def batch_metrics(raw: FloatArray, joint_speed_limit: float, settings: Objective) -> BatchMetrics:
+    """Metrics of ``B`` plans from the planner kernel's metrics rows ``raw (B, N_METRICS)``
+    (:mod:`engine.kernels.plan`); ``settings`` say how ``B`` is formed."""
+    finite = raw[:, kp.FINITE] > 0.5
+    max_speed = raw[:, kp.MAX_SPEED]
     speed_ok = finite & (max_speed <= joint_speed_limit)
-    # Non-finite samples never count as the minimum.
-    sigma = np.where(np.isfinite(sigma_min), sigma_min, np.inf)
-    det = np.where(np.isfinite(abs_det), abs_det, np.inf)
-    i_sigma = np.argmin(sigma, axis=-1)
-    i_det = np.argmin(det, axis=-1)
-    rows = np.arange(position_errors.shape[0])
-    square = bool(np.any(np.isfinite(abs_det)))
-    return BatchMetrics(
-        position_error_max=aggregate(position_errors, "max"),
-        position_error_rms=aggregate(position_errors, "rms"),
-        position_error_final=aggregate(position_errors, "final"),
-        attitude_error_max=aggregate(attitude_errors, "max"),
-        attitude_error_rms=aggregate(attitude_errors, "rms"),
-        attitude_error_final=aggregate(attitude_errors, "final"),
-        coupled_error_max=aggregate(coupled_errors, "max"),
-        coupled_error_rms=aggregate(coupled_errors, "rms"),
-        coupled_error_final=aggregate(coupled_errors, "final"),
-        max_joint_speed=max_speed,
-        max_joint_speed_joint=np.argmax(peak, axis=-1),
+    values = BatchMetrics(
+        position_error_max=raw[:, kp.POS_MAX].copy(),
+        position_error_rms=raw[:, kp.POS_RMS].copy(),
+        position_error_final=raw[:, kp.POS_FINAL].copy(),
+        attitude_error_max=raw[:, kp.ATT_MAX].copy(),
+        attitude_error_rms=raw[:, kp.ATT_RMS].copy(),
+        attitude_error_final=raw[:, kp.ATT_FINAL].copy(),
+        coupled_error_max=raw[:, kp.CPL_MAX].copy(),
+        coupled_error_rms=raw[:, kp.CPL_RMS].copy(),
+        coupled_error_final=raw[:, kp.CPL_FINAL].copy(),
+        max_joint_speed=max_speed.copy(),
+        max_joint_speed_joint=raw[:, kp.MAX_SPEED_JOINT].astype(int),
         joint_speed_limit=float(joint_speed_limit),
         joint_speed_limit_respected=speed_ok,
-        min_singular_value=sigma[rows, i_sigma],
-        time_of_min_singular_value=t[i_sigma],
-        min_abs_det_J_g=det[rows, i_det] if square else np.full(rows.shape, np.nan),
-        time_of_min_abs_det_J_g=t[i_det] if square else np.full(rows.shape, np.nan),
-        objective_b=objective(
-            position_errors, attitude_errors if settings.attitude_term == "angle" else coupled_errors, speed_ok, settings
-        ),
+        min_singular_value=raw[:, kp.MIN_SIGMA].copy(),
+        time_of_min_singular_value=raw[:, kp.T_MIN_SIGMA].copy(),
+        min_abs_det_J_g=raw[:, kp.MIN_DET].copy(),
+        time_of_min_abs_det_J_g=raw[:, kp.T_MIN_DET].copy(),
+        objective_b=np.empty(raw.shape[0]),
         weights=settings.weights,
         aggregation=settings.aggregation,
         attitude_term=settings.attitude_term,
         finite=finite,
+        time_diverged=raw[:, kp.T_DIVERGED].copy(),
     )
+    values.objective_b[:] = objective(values, settings)
+    return values

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from engine.errors import ParameterError, finite_array
+from engine.kernels.chain import Chain
 from engine.spatial import FloatArray, is_rotation
 
 MAX_JOINTS = 12
@@ -127,6 +128,20 @@ class RobotModel:
     def b_vectors(self) -> FloatArray:
         """``(n+1, 3)`` m: ``b_0`` (base) then ``b_1..b_n``."""
         return _frozen(np.stack([self.base.b] + [link.b for link in self.links]))
+
+    @cached_property
+    def chain(self) -> Chain:
+        """The model as the compiled kernels take it (private writable copies, never exposed
+        for writing: the kernels only read them)."""
+        return Chain(
+            masses=np.array(self.masses),
+            inertias=np.array(self.inertias),
+            axes=np.array(self.joint_axes),
+            a=np.array(self.a_vectors),
+            b=np.array(self.b_vectors),
+            C_e=np.array(self.C_e, dtype=float),
+            total_mass=float(self.masses.sum()),
+        )
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RobotModel:

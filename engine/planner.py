@@ -1,28 +1,34 @@
-"""Velocity-level Cartesian planner of the paper's Figure 2, batched over parameter sets.
+"""Velocity-level Cartesian planner of the paper's Figure 2: thin Python wrappers over the
+compiled step loop :func:`engine.kernels.plan.simulate`.
 
 At each sample ``t_k`` (k = 0..N): kinematics and GJM at the current state, commanded twist
 (the path's mean twist over the step, plus ``feedback_gain * pose_error`` if asked), robust
-inverse -> joint rates ``qd_k``; then ``q_{k+1} = q_k + qd_k dt``, the base attitude
-``A_0 <- exp([w_0 dt]x) A_0`` with ``w_0`` from angular-momentum conservation, and the base
-position from the fixed system centre of mass (linear momentum stays exactly zero).
+inverse -> joint rates ``qd_k``; then ``q_{k+1} = q_k + qd_k dt``, the base attitude integrated
+over the step along that linear joint motion (fourth-order Magnus on the momentum-conserving
+base rate), and the base position from the fixed system centre of mass (linear momentum stays
+exactly zero). :func:`plan` keeps every sample; :func:`plan_batch` (and the GA) keep only the
+running metrics, so their memory does not grow with the number of steps, and spread the
+parameter sets over threads (the kernels release the GIL).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
+import os
+import threading
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from engine.errors import ParameterError
-from engine.inverses import SVD, RobustInverse, inverse_params, make_inverse, method_spec, thin_svd
-from engine.jacobian import gjm_batch
-from engine.kinematics import kinematics_about_com, kinematics_batch, system_com
-from engine.metrics import BatchMetrics, Metrics, Objective, compute_metrics
+from engine.inverses import RobustInverse, inverse_params, kernel_param_rows, make_inverse, method_spec
+from engine.kernels import plan as plan_kernels
+from engine.metrics import BatchMetrics, Metrics, Objective, batch_metrics
 from engine.model import RobotModel
-from engine.spatial import FloatArray, exp_so3, log_so3
+from engine.spatial import FloatArray
 from engine.trajectory import CartesianTask
 
 #: Default tolerances on the final pose for a plan to count as reaching its target. Loose on
@@ -30,151 +36,85 @@ from engine.trajectory import CartesianTask
 POSITION_TOLERANCE_M = 0.05
 ATTITUDE_TOLERANCE_RAD = math.radians(5.0)
 
-
 #: Parameter sets of one method: ``{name: (B,) values}`` or a list of ``{name: value}``.
 ParamSets = Mapping[str, Sequence[float] | FloatArray] | Sequence[Mapping[str, float]]
 
 
-@dataclass(frozen=True)
-class _Trace:
-    """Raw arrays of a batched simulation, time-major after the batch axis."""
-
-    t: FloatArray
-    q: FloatArray  # (B, N+1, n)
-    qd: FloatArray  # (B, N+1, n)
-    base_position: FloatArray  # (B, N+1, 3)
-    base_attitude: FloatArray  # (B, N+1, 3, 3)
-    ee_position: FloatArray  # (B, N+1, 3)
-    ee_attitude: FloatArray  # (B, N+1, 3, 3)
-    singular_values: FloatArray  # (B, N+1, m)
-    det_J_g: FloatArray  # (B, N+1)
-    damping: FloatArray  # (B, N+1, m)
-    p_des: FloatArray  # (N+1, 3) desired end-effector positions
-    A_des: FloatArray  # (N+1, 3, 3) desired end-effector attitudes
+def default_threads() -> int:
+    """Threads for batched evaluation: ``SPACEARM_ENGINE_THREADS`` if set, else the CPU count."""
+    configured = os.environ.get("SPACEARM_ENGINE_THREADS", "")
+    if configured.strip():
+        return max(1, int(configured))
+    return max(1, os.cpu_count() or 1)
 
 
-def _simulate(
-    model: RobotModel,
-    task: CartesianTask,
-    inverse: RobustInverse,
-    batch: int,
-    feedback_gain: float,
-) -> _Trace:
+_POOL_LOCK = threading.Lock()
+_POOL: tuple[int, int, ThreadPoolExecutor] | None = None  # (pid, threads, pool)
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """A process-wide thread pool (made again after a fork, whose child has no threads)."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None or _POOL[0] != os.getpid() or _POOL[1] < threads:
+            _POOL = (os.getpid(), threads, ThreadPoolExecutor(max_workers=threads, thread_name_prefix="spacearm-plan"))
+        return _POOL[2]
+
+
+def _check(model: RobotModel, task: CartesianTask, feedback_gain: float) -> None:
     n = model.n_joints
     if task.q0.shape != (n,):
         raise ParameterError("q0", f"task has {task.q0.shape[0]} joint angles, robot has {n} joints")
     if not math.isfinite(feedback_gain) or feedback_gain < 0.0:
         raise ParameterError("feedback_gain", "must be finite and >= 0")
-    N = task.n_steps
-    m = min(6, n)
-    dt = task.dt
-    t = task.times()
-    twists = task.step_twists()
-    p_des, A_des = task.desired_pose(t)
-
-    q = np.tile(task.q0, (batch, 1))
-    A0 = np.tile(np.eye(3), (batch, 1, 1))
-    kin = kinematics_batch(model, q, A0, np.zeros((batch, 3)))
-    com = system_com(model, kin)
-
-    out_q = np.empty((batch, N + 1, n))
-    out_qd = np.empty((batch, N + 1, n))
-    out_base_p = np.empty((batch, N + 1, 3))
-    out_base_A = np.empty((batch, N + 1, 3, 3))
-    out_p = np.empty((batch, N + 1, 3))
-    out_A = np.empty((batch, N + 1, 3, 3))
-    out_s = np.empty((batch, N + 1, m))
-    out_det = np.full((batch, N + 1), np.nan)
-    out_damp = np.empty((batch, N + 1, m))
-    square = n == 6
-    with np.errstate(all="ignore"):  # a diverging plan yields inf/nan, reported by the metrics
-        for k in range(N + 1):
-            if k > 0:
-                kin = kinematics_about_com(model, q, A0, com)
-            J_g, base_map = gjm_batch(model, kin)
-            svd = thin_svd(J_g) if np.all(np.isfinite(J_g)) else _nan_svd(J_g)
-            xdot = np.broadcast_to(twists[k], (batch, 6))
-            if feedback_gain > 0.0:
-                error = np.empty((batch, 6))
-                error[:, :3] = p_des[k] - kin.ee_position
-                error[:, 3:] = log_so3(A_des[k] @ np.swapaxes(kin.ee_attitude, -1, -2))
-                xdot = xdot + feedback_gain * error
-            step = inverse.solve(J_g, xdot, svd)
-            out_q[:, k] = q
-            out_qd[:, k] = step.qd
-            out_base_p[:, k] = kin.body_com[:, 0]
-            out_base_A[:, k] = A0
-            out_p[:, k] = kin.ee_position
-            out_A[:, k] = kin.ee_attitude
-            out_s[:, k] = svd.s
-            out_damp[:, k] = step.damping
-            if square:
-                out_det[:, k] = np.linalg.det(J_g) if np.all(np.isfinite(J_g)) else np.nan
-            if k < N:
-                w0 = np.einsum("bij,bj->bi", base_map[:, 3:], step.qd)
-                A0 = exp_so3(w0 * dt) @ A0
-                q = q + step.qd * dt
-    return _Trace(t, out_q, out_qd, out_base_p, out_base_A, out_p, out_A, out_s, out_det, out_damp, p_des, A_des)
 
 
-def _nan_svd(J: FloatArray) -> SVD:
-    """SVD of a batch where some members diverged: NaN for those, the real SVD for the rest."""
-    ok = np.all(np.isfinite(J), axis=(-2, -1))
-    batch, rows, cols = J.shape
-    m = min(rows, cols)
-    U = np.full((batch, rows, m), np.nan)
-    s = np.full((batch, m), np.nan)
-    Vt = np.full((batch, m, cols), np.nan)
-    if np.any(ok):
-        good = thin_svd(J[ok])
-        U[ok], s[ok], Vt[ok] = good.U, good.s, good.Vt
-    return SVD(U, s, Vt)
-
-
-@dataclass(frozen=True)
-class _Errors:
-    position: FloatArray  # (B, N+1) m
-    attitude: FloatArray  # (B, N+1) rad, rotation angle
-    coupled: FloatArray  # (B, N+1) m rad, eq. 18 as printed
-    p_des: FloatArray  # (N+1, 3)
-    A_des: FloatArray  # (N+1, 3, 3)
-
-
-def _errors(trace: _Trace) -> _Errors:
-    p_des, A_des = trace.p_des, trace.A_des
-    dp = trace.ee_position - p_des
-    finite = np.all(np.isfinite(trace.ee_attitude), axis=(-2, -1))
-    safe = np.where(finite[..., None, None], trace.ee_attitude, np.eye(3))
-    dphi = log_so3(safe @ np.swapaxes(A_des, -1, -2))  # world-axes rotation vector of the error
-    dphi = np.where(finite[..., None], dphi, np.nan)
-    return _Errors(
-        position=np.linalg.norm(dp, axis=-1),
-        attitude=np.linalg.norm(dphi, axis=-1),
-        coupled=np.linalg.norm(dp * dphi, axis=-1),
-        p_des=p_des,
-        A_des=A_des,
+def _kernel_args(
+    model: RobotModel, task: CartesianTask, inverse: RobustInverse, feedback_gain: float, params: FloatArray
+) -> tuple[object, ...]:
+    """The leading arguments of the planner kernels, checked; always of the same types, so each
+    kernel is compiled once."""
+    _check(model, task, feedback_gain)
+    samples = task.samples
+    q0 = np.array(task.q0, dtype=float)
+    return (
+        model.chain,
+        q0,
+        samples.twists,
+        samples.p_des,
+        samples.A_des,
+        float(task.dt),
+        float(feedback_gain),
+        int(inverse.method_id),
+        params,
     )
 
 
-def _batch_metrics(task: CartesianTask, trace: _Trace, errors: _Errors, objective: Objective) -> BatchMetrics:
-    peak = np.max(np.abs(trace.qd), axis=1)
-    return compute_metrics(
-        trace.t,
-        errors.position,
-        errors.attitude,
-        errors.coupled,
-        peak,
-        trace.singular_values[..., -1],
-        np.abs(trace.det_J_g),
-        task.joint_speed_limit,
-        objective,
+def _evaluate_range(args: tuple[object, ...], start: int, stop: int, out: FloatArray) -> None:
+    plan_kernels.evaluate_range(*args, start, stop, out)
+
+
+def _trace_arrays(n_samples: int, n: int) -> tuple[FloatArray, ...]:
+    m = min(6, n)
+    return (
+        np.empty((n_samples, n)),
+        np.empty((n_samples, n)),
+        np.empty((n_samples, 3)),
+        np.empty((n_samples, 3, 3)),
+        np.empty((n_samples, 3)),
+        np.empty((n_samples, 3, 3)),
+        np.empty((n_samples, m)),
+        np.empty(n_samples),
+        np.empty((n_samples, m)),
+        np.empty(n_samples),
+        np.empty(n_samples),
     )
 
 
 def _verdict(metrics: Metrics, position_tolerance: float, attitude_tolerance: float) -> tuple[bool, str]:
     problems = []
     if not metrics.finite:
-        problems.append("the plan diverged (non-finite joint rates or poses)")
+        problems.append(f"the plan diverged at t = {metrics.time_diverged:g} s (non-finite joint rates or poses)")
     else:
         if metrics.position_error_final > position_tolerance or metrics.attitude_error_final > attitude_tolerance:
             problems.append(
@@ -198,7 +138,7 @@ class PlanResult:
 
     ``qd[k]`` is the joint rate commanded over ``[t_k, t_{k+1}]`` (the last one is the rate
     commanded at the end, zero without feedback). ``damping`` is the effective damping per
-    singular direction (see :mod:`engine.inverses`).
+    singular direction (see :mod:`engine.inverses`). After a divergence the samples are NaN.
     """
 
     method: str
@@ -241,29 +181,34 @@ def plan(
     diverged, misses the target pose by more than the tolerances, or breaks the joint
     speed limit; the arrays and metrics are returned in every case."""
     objective = Objective(weights, aggregation, attitude_term)
-    trace = _simulate(model, task, inverse, 1, feedback_gain)
-    errors = _errors(trace)
-    metrics = _batch_metrics(task, trace, errors, objective).item(0)
+    samples = task.samples
+    trace = _trace_arrays(samples.t.shape[0], model.n_joints)
+    raw = np.empty((1, plan_kernels.N_METRICS))
+    plan_kernels.simulate(
+        *_kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, 1)[0]), True, trace, raw[0]
+    )
+    metrics = batch_metrics(raw, task.joint_speed_limit, objective).item(0)
     success, message = _verdict(metrics, position_tolerance, attitude_tolerance)
+    q, qd, base_p, base_A, ee_p, ee_A, sv, det, damping, pos_err, att_err = trace
     return PlanResult(
         method=inverse.name,
         params=inverse_params(inverse),
         feedback_gain=feedback_gain,
-        t=trace.t,
-        q=trace.q[0],
-        qd=trace.qd[0],
-        base_position=trace.base_position[0],
-        base_attitude=trace.base_attitude[0],
-        ee_position=trace.ee_position[0],
-        ee_attitude=trace.ee_attitude[0],
-        ee_position_desired=errors.p_des,
-        ee_attitude_desired=errors.A_des,
-        ee_twist_desired=task.desired_twist(trace.t),
-        position_error=errors.position[0],
-        attitude_error=errors.attitude[0],
-        singular_values=trace.singular_values[0],
-        det_J_g=trace.det_J_g[0],
-        damping=trace.damping[0],
+        t=samples.t.copy(),
+        q=q,
+        qd=qd,
+        base_position=base_p,
+        base_attitude=base_A,
+        ee_position=ee_p,
+        ee_attitude=ee_A,
+        ee_position_desired=samples.p_des.copy(),
+        ee_attitude_desired=samples.A_des.copy(),
+        ee_twist_desired=samples.twist_des.copy(),
+        position_error=pos_err,
+        attitude_error=att_err,
+        singular_values=sv,
+        det_J_g=det,
+        damping=damping,
         metrics=metrics,
         success=success,
         message=message,
@@ -303,6 +248,35 @@ def _stack_params(method: str, params: ParamSets) -> dict[str, FloatArray]:
     return columns
 
 
+def evaluate(
+    model: RobotModel,
+    task: CartesianTask,
+    inverse: RobustInverse,
+    batch: int,
+    *,
+    feedback_gain: float = 0.0,
+    threads: int | None = None,
+    batch_size: int | None = None,
+) -> FloatArray:
+    """The kernel's metrics rows ``(batch, N_METRICS)`` of ``batch`` parameter sets of
+    ``inverse`` (array parameters of shape ``(batch,)``), no traces kept. The sets are split
+    into pieces of ``batch_size`` (default: about four per thread, for balance: diverging
+    plans end early) run on ``threads`` threads (default :func:`default_threads`)."""
+    args = _kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, batch))
+    out = np.empty((batch, plan_kernels.N_METRICS))
+    workers = max(1, threads if threads is not None else default_threads())
+    size = batch_size or max(1, math.ceil(batch / (4 * workers)))
+    edges = list(range(0, batch, size)) + [batch]
+    if workers == 1 or len(edges) <= 2:
+        _evaluate_range(args, 0, batch, out)
+        return out
+    pool = _pool(workers)
+    futures = [pool.submit(_evaluate_range, args, a, b, out) for a, b in itertools.pairwise(edges)]
+    for f in futures:
+        f.result()
+    return out
+
+
 def plan_batch(
     model: RobotModel,
     task: CartesianTask,
@@ -314,33 +288,18 @@ def plan_batch(
     weights: tuple[float, float] = (0.5, 0.5),
     aggregation: str = "max",
     attitude_term: str = "angle",
+    threads: int | None = None,
 ) -> BatchResult:
-    """Plan many parameter sets of ``method`` in one vectorised simulation.
+    """Plan many parameter sets of ``method`` and return their metrics (no trajectories: the
+    memory is proportional to the number of sets, not to the number of steps).
 
     ``params`` is either ``{name: (B,) values}`` or a list of ``{name: value}`` dicts.
-    ``batch_size`` splits very large populations into chunks to bound memory.
+    ``batch_size`` and ``threads``: see :func:`evaluate`. Each set's result is independent of
+    the batch it runs in.
     """
     objective = Objective(weights, aggregation, attitude_term)
     columns = _stack_params(method, params)
-    total = next(iter(columns.values())).shape[0] if columns else 1
-    if not columns and isinstance(params, Sequence):
-        total = max(1, len(params))
-    chunk = batch_size or total
-    parts = []
-    for start in range(0, total, chunk):
-        stop = min(total, start + chunk)
-        inverse = make_inverse(method, **{k: v[start:stop] for k, v in columns.items()})
-        trace = _simulate(model, task, inverse, stop - start, feedback_gain)
-        parts.append(_batch_metrics(task, trace, _errors(trace), objective))
-    return BatchResult(method=method, params=columns, metrics=_concat(parts))
-
-
-def _concat(parts: list[BatchMetrics]) -> BatchMetrics:
-    if len(parts) == 1:
-        return parts[0]
-    first = parts[0]
-    values: dict[str, Any] = {}
-    for name in first.__dataclass_fields__:
-        v = getattr(first, name)
-        values[name] = np.concatenate([getattr(p, name) for p in parts]) if isinstance(v, np.ndarray) else v
-    return BatchMetrics(**values)
+    total = next(iter(columns.values())).shape[0] if columns else max(1, len(params))
+    inverse = make_inverse(method, **columns)
+    raw = evaluate(model, task, inverse, total, feedback_gain=feedback_gain, threads=threads, batch_size=batch_size)
+    return BatchResult(method=method, params=columns, metrics=batch_metrics(raw, task.joint_speed_limit, objective))

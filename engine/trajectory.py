@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from functools import cached_property
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -32,6 +33,22 @@ MAX_STEPS = 20_000
 PAPER_Q0_DEG = (175.0, -60.0, -60.0, 0.0, 210.0, 5.0)
 PAPER_TARGET_POSITION = (1.50, 0.0, -0.20)
 PAPER_TARGET_RPY = (-3.16, -0.26, -3.14)
+
+
+class PathSamples(NamedTuple):
+    """A task sampled for the planner (what the kernels consume; do not modify).
+
+    ``t (N+1,)`` s; ``twists (N+1, 6)`` the commanded twist of each step ``[v; w]`` (m/s, rad/s,
+    world axes; the mean desired twist over the step, zero at the end); ``p_des (N+1, 3)`` m and
+    ``A_des (N+1, 3, 3)`` the desired poses at the samples; ``twist_des (N+1, 6)`` the
+    instantaneous desired twist there.
+    """
+
+    t: FloatArray
+    twists: FloatArray
+    p_des: FloatArray
+    A_des: FloatArray
+    twist_des: FloatArray
 
 
 @dataclass(frozen=True)
@@ -157,6 +174,19 @@ class CartesianTask:
         direction = np.concatenate([self.target_position - self.start_position, self._phi])
         ds = np.append(np.diff(s), 0.0)
         return (ds / self.dt)[:, None] * direction
+
+    @cached_property
+    def samples(self) -> PathSamples:
+        """The sampled path (computed once per task)."""
+        t = self.times()
+        p_des, A_des = self.desired_pose(t)
+        return PathSamples(
+            t=np.ascontiguousarray(t, dtype=float),
+            twists=np.ascontiguousarray(self.step_twists(), dtype=float),
+            p_des=np.ascontiguousarray(p_des, dtype=float),
+            A_des=np.ascontiguousarray(A_des, dtype=float),
+            twist_des=self.desired_twist(t),
+        )
 
     def to_summary(self) -> dict[str, object]:
         return {

@@ -300,6 +300,7 @@ def tune(
     cache_hits = population - planned
     best = min(pop, key=lambda ind: ind.objective_b)
     history: list[GenerationRecord] = []
+
     def record(generation: int) -> bool:
         feasible = [ind.objective_b for ind in pop if math.isfinite(ind.objective_b)]
         mean_b = float(np.mean(feasible)) if feasible else math.inf

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import logging
+import threading
+import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+import httpx
 from fastapi import FastAPI
 
+import engine
 from service import errors, security
 from service.db import Database
 from service.migrate import seed_presets
@@ -33,6 +39,71 @@ TAGS = [
 ]
 
 
+log = logging.getLogger("spacearm.api")
+
+#: Requests that reach every router without changing anything (see :meth:`Kernels._visit_routers`).
+WARM_UP_PATHS = (
+    "/v1/plans/warm-up",
+    "/v1/plans/warm-up/figures/joint-angles",
+    "/v1/robots/warm-up",
+    "/v1/task-presets",
+    "/v1/tuning-jobs/warm-up",
+    "/plans/warm-up",
+)
+
+
+class Kernels:
+    """Loads (or compiles) the engine's kernels in a background thread at start-up, then
+    rehearses a plan request (rolled back): liveness answers at once, readiness once the kernels
+    are in (see :func:`engine.warm_up`), so the first request runs at the steady-state speed."""
+
+    def __init__(self, app: FastAPI, db: Database, settings: Settings) -> None:
+        self.app = app
+        self.db = db
+        self.settings = settings
+        self.ready = threading.Event()
+        self.error: str | None = None
+        self.seconds: float | None = None
+
+    def start(self) -> None:
+        threading.Thread(target=self._load, name="kernel-warm-up", daemon=True).start()
+
+    def _load(self) -> None:
+        start = time.perf_counter()
+        try:
+            engine.warm_up()
+            self.seconds = time.perf_counter() - start
+            log.info("engine kernels ready in %.1f s", self.seconds)
+        except Exception as exc:  # reported by /readyz; plans would fail the same way
+            self.error = f"{type(exc).__name__}: {exc}"
+            log.exception("loading the engine kernels failed")
+            self.ready.set()
+            return
+        try:
+            plans.rehearse(self.db, self.settings)
+            asyncio.run(self._visit_routers())
+        except Exception as exc:  # e.g. not migrated yet: /readyz reports the database itself
+            log.info("request rehearsal skipped: %s: %s", type(exc).__name__, exc)
+        finally:
+            self.ready.set()
+
+    async def _visit_routers(self) -> None:
+        """FastAPI prepares each router's routes on the first request that reaches it; send each
+        one a request that changes nothing (unknown ids answer 404), in process."""
+        keys = self.settings.keys()
+        headers = {"authorization": f"Bearer {keys[0]}"} if keys else {}
+        transport = httpx.ASGITransport(app=self.app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://warm-up", headers=headers) as client:
+            for path in WARM_UP_PATHS:
+                await client.get(path)
+
+    @property
+    def state(self) -> str:
+        if not self.ready.is_set():
+            return "loading"
+        return "ok" if self.error is None else f"failed: {self.error}"
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
 
@@ -41,6 +112,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
         app.state.db = db
         app.state.settings = settings
+        app.state.kernels = Kernels(app, db, settings)
+        app.state.kernels.start()
         with contextlib.suppress(Exception):  # not migrated yet: /readyz says so
             seed_presets(db)
         yield

@@ -1,9 +1,11 @@
 """Conversions between API bodies and the engine (degrees <-> radians, quaternions <-> matrices),
-and JSON sanitising (NaN and infinities become null)."""
+and JSON sanitising of small bodies (NaN and infinities become null)."""
 
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -12,6 +14,7 @@ from sqlalchemy.orm import Session
 from engine import CartesianTask, Metrics, PlanResult, ReplayResult, RobotModel
 from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
+from service import jsonio
 from service.errors import ApiValidationError, NotFoundError
 from service.models import Robot
 from service.schemas import RobotParams, TaskIn
@@ -46,12 +49,30 @@ def field_path(field: str) -> list[str | int]:
     return path
 
 
+_MODELS: OrderedDict[bytes, RobotModel] = OrderedDict()
+_MODELS_LOCK = threading.Lock()
+MODEL_CACHE_SIZE = 64
+
+
 def robot_model(parameters: dict[str, Any], loc: tuple[str | int, ...] = ("body", "robot")) -> RobotModel:
+    """The validated model of a parameter set. Models are immutable, so the last few are kept
+    (keyed by their parameters), which spares stored robots the validation on every request."""
+    key = jsonio.dumps_sorted(parameters)
+    with _MODELS_LOCK:
+        cached = _MODELS.get(key)
+        if cached is not None:
+            _MODELS.move_to_end(key)
+            return cached
     try:
-        return RobotModel.from_dict(parameters)
+        model = RobotModel.from_dict(parameters)
     except ParameterError as exc:
         path = [*loc, *field_path(exc.field)]
         raise ApiValidationError(f"invalid robot parameters: {exc}", [{"loc": path, "msg": exc.reason}]) from None
+    with _MODELS_LOCK:
+        _MODELS[key] = model
+        while len(_MODELS) > MODEL_CACHE_SIZE:
+            _MODELS.popitem(last=False)
+    return model
 
 
 def resolve_robot(session: Session, robot_id: str | None, inline: RobotParams | None) -> tuple[str | None, RobotModel]:
@@ -129,25 +150,25 @@ def metrics_out(m: Metrics) -> dict[str, Any]:
     )
 
 
-def trajectory_out(r: PlanResult) -> dict[str, Any]:
-    return clean(
-        {
-            "t_s": r.t,
-            "joint_angles_deg": np.degrees(r.q),
-            "joint_velocities_deg_s": np.degrees(r.qd),
-            "base_position_m": r.base_position,
-            "base_attitude_quaternion": _quats(r.base_attitude),
-            "ee_position_m": r.ee_position,
-            "ee_position_desired_m": r.ee_position_desired,
-            "ee_attitude_quaternion": _quats(r.ee_attitude),
-            "ee_attitude_desired_quaternion": _quats(r.ee_attitude_desired),
-            "singular_values": r.singular_values,
-            "det_gjm": r.det_J_g,
-            "damping": r.damping,
-            "position_error_m": r.position_error,
-            "attitude_error_rad": r.attitude_error,
-        }
-    )
+def trajectory_out(r: PlanResult) -> dict[str, np.ndarray]:
+    """The stored and returned trajectory: numpy arrays (written by :mod:`service.jsonio`, NaN as
+    null)."""
+    return {
+        "t_s": r.t,
+        "joint_angles_deg": np.degrees(r.q),
+        "joint_velocities_deg_s": np.degrees(r.qd),
+        "base_position_m": r.base_position,
+        "base_attitude_quaternion": _quats(r.base_attitude),
+        "ee_position_m": r.ee_position,
+        "ee_position_desired_m": r.ee_position_desired,
+        "ee_attitude_quaternion": _quats(r.ee_attitude),
+        "ee_attitude_desired_quaternion": _quats(r.ee_attitude_desired),
+        "singular_values": r.singular_values,
+        "det_gjm": r.det_J_g,
+        "damping": r.damping,
+        "position_error_m": r.position_error,
+        "attitude_error_rad": r.attitude_error,
+    }
 
 
 def _quats(R: np.ndarray) -> np.ndarray:

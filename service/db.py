@@ -18,6 +18,8 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
+from service import jsonio
+
 P = ParamSpec("P")
 T = TypeVar("T")
 
@@ -71,7 +73,9 @@ def make_engine(url: str, busy_timeout_ms: int = 10_000) -> Engine:
     ensure_sqlite_dir(url)
     parsed = make_url(url)
     is_sqlite = parsed.get_backend_name() == "sqlite"
-    kwargs: dict[str, Any] = {}
+    # JSON columns through orjson: trajectories are stored straight from the planner's numpy
+    # arrays (no Python-list copy), NaN and infinities as null.
+    kwargs: dict[str, Any] = {"json_serializer": jsonio.dumps_text, "json_deserializer": jsonio.loads}
     if is_sqlite:
         kwargs["connect_args"] = {"check_same_thread": False, "timeout": busy_timeout_ms / 1000.0}
     else:

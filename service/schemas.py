@@ -256,9 +256,16 @@ class PlanSummary(BaseModel):
     created_at: datetime
 
 
+PLAN_SECTIONS = ("trajectory", "replay")
+
+
 class PlanOut(PlanSummary):
-    trajectory: Trajectory
-    replay: ReplayOut | None
+    """A plan: the summary, and the sections asked for with ``fields`` (all by default)."""
+
+    trajectory: Trajectory | None = Field(
+        default=None, description="every sample of the plan (left out when `fields` does not name it)"
+    )
+    replay: ReplayOut | None = Field(default=None, description="the independent replay's checks; null if not replayed")
 
 
 class PlanList(BaseModel):
@@ -391,6 +398,7 @@ class TuningJobResult(BaseModel):
 
 class Health(BaseModel):
     status: str
+    kernels: str | None = Field(default=None, description="the engine's compiled kernels: loading, ok or failed: ...")
     database: str | None = None
     revision: str | None = None
     head: str | None = None

@@ -11,6 +11,7 @@ import threading
 import uuid
 from typing import Any
 
+from engine import warm_up
 from engine.tuning import MapFn, dask_map
 from service import queue
 from service.db import Database
@@ -37,6 +38,8 @@ def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Ev
         signal.signal(signal.SIGTERM, _handle)
         signal.signal(signal.SIGINT, _handle)
 
+    seconds = warm_up()  # load (or compile) the kernels before claiming a job
+    log.info("engine kernels ready in %.1f s", seconds)
     db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
     seed_presets(db)
     me = worker_id()

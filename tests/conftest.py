@@ -6,7 +6,14 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from engine import paper_task, table1_robot
+from engine import paper_task, table1_robot, warm_up
+
+
+@pytest.fixture(scope="session", autouse=True)
+def kernels():
+    """Compile (or load) the kernels once, first: numba's cache is then warm for every API and
+    worker process the service tests start."""
+    return warm_up()
 
 
 @pytest.fixture(scope="session")

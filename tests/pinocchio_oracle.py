@@ -45,3 +45,53 @@ def pinocchio_gjm(pm: pin.Model, frame_id: int, q_pin: np.ndarray) -> tuple[np.n
     J_g = J[:, 6:] - J[:, :6] @ np.linalg.solve(Ag[:, :6], Ag[:, 6:])
     placement = data.oMf[frame_id]
     return J_g, placement.translation.copy(), placement.rotation.copy()
+
+
+def adaptive_joint_rates(J_g: np.ndarray, xdot: np.ndarray, lam_max: float, epsilon: float) -> np.ndarray:
+    """Eq. 16 written out with ``np.linalg.svd`` (no engine code)."""
+    U, s, Vt = np.linalg.svd(J_g, full_matrices=False)
+    lam = np.where(s < epsilon, 0.5 * lam_max * (1.0 + np.cos(np.pi * s / epsilon)), 0.0)
+    return Vt.T @ ((s / (s * s + lam * lam)) * (U.T @ xdot))
+
+
+def pinocchio_plan(pm: pin.Model, frame_id: int, q0: np.ndarray, twists: np.ndarray, dt: float, lam_max: float, epsilon: float):
+    """The planner loop written with Pinocchio's own functions, reusing no engine code: the GJM
+    from the frame Jacobian and the centroidal momentum matrix, eq. 16 on ``np.linalg.svd``, the
+    joints by ``q += qd dt`` and the base by ``pin.integrate`` with the fourth-order Magnus
+    rotation over the step (the base's local angular velocity at the start, middle and end of the
+    joint line, from the centroidal map; ``Omega = dt/6 (w_0 + 4 w_m + w_1) + dt^2/12 w_0 x w_1``),
+    the base position then shifted so the centre of mass stays put.
+
+    ``twists (N+1, 6)`` are the commanded world twists. Returns the joint angles ``(N+1, n)``.
+    """
+    data = pm.createData()
+    n = q0.shape[0]
+    q_pin = pinocchio_configuration(q0, np.zeros(3), np.eye(3))
+    com0 = pin.centerOfMass(pm, data, q_pin).copy()
+
+    def base_map(config: np.ndarray) -> np.ndarray:
+        Ag = pin.computeCentroidalMap(pm, data, config)
+        return -np.linalg.solve(Ag[:, :6], Ag[:, 6:])  # joint rates -> base twist, base frame
+
+    qs = np.empty((twists.shape[0], n))
+    bm = base_map(q_pin)
+    for k in range(twists.shape[0]):
+        J = pin.computeFrameJacobian(pm, data, q_pin, frame_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        J_g = J[:, 6:] + J[:, :6] @ bm  # the free flyer's velocity is in the base frame, like bm
+        qd = adaptive_joint_rates(J_g, twists[k], lam_max, epsilon)
+        qs[k] = q_pin[7:]
+        if k == twists.shape[0] - 1:
+            break
+        w0 = bm[3:] @ qd
+        mid = q_pin.copy()
+        mid[7:] += qd * (0.5 * dt)
+        wm = base_map(mid)[3:] @ qd
+        end = q_pin.copy()
+        end[7:] += qd * dt
+        bm = base_map(end)
+        w1 = bm[3:] @ qd
+        omega = dt / 6.0 * (w0 + 4.0 * wm + w1) + dt * dt / 12.0 * np.cross(w0, w1)
+        v = np.concatenate([np.zeros(3), omega / dt, qd])
+        q_pin = pin.integrate(pm, q_pin, v * dt)
+        q_pin[:3] += com0 - pin.centerOfMass(pm, data, q_pin)
+    return qs

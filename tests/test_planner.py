@@ -1,11 +1,12 @@
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from engine import CartesianTask, make_inverse, plan, plan_batch
 from engine.metrics import Objective, objective
-from engine.spatial import exp_so3, rotation_angle
+from engine.spatial import exp_so3, log_so3, rotation_angle
 
 DAMPED = ("dls", "adaptive", "wdls", "sdls", "svf")
 
@@ -113,19 +114,56 @@ def test_plan_batch_accepts_rows_and_chunks(robot, task):
 
 
 def test_objective_aggregations_and_penalty():
-    pos = np.array([[0.0, 0.004, 0.002]])
-    att = np.array([[0.0, 0.01, 0.006]])
-    ok = np.array([True])
-    assert objective(pos, att, ok, Objective((0.5, 0.5), "max"))[0] == pytest.approx(0.007)
-    assert objective(pos, att, ok, Objective((0.5, 0.5), "final"))[0] == pytest.approx(0.004)
-    rms = 0.5 * np.sqrt(np.mean(pos**2)) + 0.5 * np.sqrt(np.mean(att**2))
-    assert objective(pos, att, ok, Objective((0.5, 0.5), "rms"))[0] == pytest.approx(rms)
-    assert objective(pos, att, ok, Objective((1.0, 0.0), "max"))[0] == pytest.approx(0.004)
-    assert math.isinf(objective(pos, att, np.array([False]), Objective())[0])
+    m = SimpleNamespace(
+        position_error_max=0.004,
+        position_error_rms=0.003,
+        position_error_final=0.002,
+        attitude_error_max=0.01,
+        attitude_error_rms=0.008,
+        attitude_error_final=0.006,
+        coupled_error_max=1e-5,
+        coupled_error_rms=8e-6,
+        coupled_error_final=5e-6,
+        joint_speed_limit_respected=np.array([True]),
+    )
+    assert objective(m, Objective((0.5, 0.5), "max"))[0] == pytest.approx(0.007)
+    assert objective(m, Objective((0.5, 0.5), "final"))[0] == pytest.approx(0.004)
+    assert objective(m, Objective((0.5, 0.5), "rms"))[0] == pytest.approx(0.0055)
+    assert objective(m, Objective((1.0, 0.0), "max"))[0] == pytest.approx(0.004)
+    assert objective(m, Objective((0.5, 0.5), "max", "eq18"))[0] == pytest.approx(0.5 * 0.004 + 0.5 * 1e-5)
+    m.joint_speed_limit_respected = np.array([False])
+    assert math.isinf(objective(m, Objective())[0])
     with pytest.raises(ValueError, match="aggregation"):
         Objective((0.5, 0.5), "mean")
     with pytest.raises(ValueError, match="weights"):
         Objective((0.0, 0.0))
+
+
+def test_running_metrics_equal_the_returned_series(robot, task):
+    """The kernel accumulates the metrics as it plans; they must equal the aggregates of the
+    per-sample series it returns, recomputed here with numpy."""
+    r = plan(robot, task, make_inverse("wdls"))
+    m = r.metrics
+    assert m.position_error_max == r.position_error.max()
+    assert m.position_error_final == r.position_error[-1]
+    assert m.position_error_rms == pytest.approx(np.sqrt(np.mean(r.position_error**2)), rel=1e-13)
+    assert m.attitude_error_max == r.attitude_error.max()
+    assert m.attitude_error_rms == pytest.approx(np.sqrt(np.mean(r.attitude_error**2)), rel=1e-13)
+    dp = r.ee_position - r.ee_position_desired
+    np.testing.assert_allclose(np.linalg.norm(dp, axis=1), r.position_error, rtol=1e-13, atol=1e-16)
+    dphi = log_so3(r.ee_attitude @ np.swapaxes(r.ee_attitude_desired, -1, -2))
+    np.testing.assert_allclose(np.linalg.norm(dphi, axis=1), r.attitude_error, rtol=1e-12, atol=1e-15)
+    coupled = np.linalg.norm(dp * dphi, axis=1)
+    assert m.coupled_error_max == pytest.approx(coupled.max(), rel=1e-12)
+    assert m.coupled_error_final == pytest.approx(coupled[-1], rel=1e-12)
+    speeds = np.abs(r.qd)
+    assert m.max_joint_speed == speeds.max()
+    assert m.max_joint_speed_joint == int(np.argmax(speeds.max(axis=0)))
+    k = int(np.argmin(r.singular_values[:, -1]))
+    assert m.min_singular_value == r.singular_values[k, -1] and m.time_of_min_singular_value == r.t[k]
+    k = int(np.argmin(np.abs(r.det_J_g)))
+    assert m.min_abs_det_J_g == abs(r.det_J_g[k]) and m.time_of_min_abs_det_J_g == r.t[k]
+    np.testing.assert_allclose(np.abs(r.det_J_g), np.prod(r.singular_values, axis=1), rtol=1e-9)
 
 
 def test_metrics_respect_speed_limit_definition(robot, task):

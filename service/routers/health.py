@@ -21,18 +21,21 @@ def healthz() -> Health:
     "/readyz",
     operation_id="readyz",
     response_model=Health,
-    summary="Readiness: the database is reachable and at the head revision",
+    summary="Readiness: the engine's kernels are loaded, the database is reachable and at the head revision",
     responses={503: {"description": "not ready", "model": Health}},
 )
 def readyz(request: Request) -> Health | JSONResponse:
+    kernels = request.app.state.kernels.state
+    if kernels != "ok":
+        return JSONResponse(Health(status="unavailable", kernels=kernels).model_dump(exclude_none=True), status_code=503)
     db: Database = request.app.state.db
     head = head_revision(db.url)
     try:
         revision = current_revision(db.engine)
     except Exception as exc:
-        body = Health(status="unavailable", database=f"unreachable: {type(exc).__name__}", head=head)
+        body = Health(status="unavailable", kernels=kernels, database=f"unreachable: {type(exc).__name__}", head=head)
         return JSONResponse(body.model_dump(), status_code=503)
     if revision != head:
-        body = Health(status="unavailable", database="not migrated", revision=revision, head=head)
+        body = Health(status="unavailable", kernels=kernels, database="not migrated", revision=revision, head=head)
         return JSONResponse(body.model_dump(), status_code=503)
-    return Health(status="ok", database="ok", revision=revision, head=head)
+    return Health(status="ok", kernels=kernels, database="ok", revision=revision, head=head)

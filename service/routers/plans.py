@@ -1,23 +1,33 @@
 """Synchronous plans. Handlers are plain ``def`` functions, so FastAPI runs them in its thread
-pool and a long plan never blocks the event loop."""
+pool and a long plan never blocks the event loop (the engine's kernels release the GIL, so plans
+run in parallel).
+
+Plan bodies are written once, by orjson from the planner's arrays (:mod:`service.jsonio`): the
+trajectory is neither copied into Python lists nor validated again on the way out, and a stored
+trajectory is spliced into the response as the JSON text the database holds. ``fields`` leaves
+out the large sections."""
 
 from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from fastapi import APIRouter, Query, Response, status
-from sqlalchemy import func, select
+from sqlalchemy import Text, cast, func, select
+from sqlalchemy.orm import Session
 
 from engine import PlanResult, make_inverse, plan, replay
 from engine.errors import ParameterError
+from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
+from service.db import Database
 from service.deps import SessionDep, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
 from service.models import Plan
-from service.schemas import PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
+from service.schemas import PLAN_SECTIONS, PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
+from service.settings import Settings
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 
@@ -66,6 +76,33 @@ def not_replayed(reason: str) -> dict[str, Any]:
     return {"success": False, "message": reason, **dict.fromkeys(fields)}
 
 
+FieldsQuery = Annotated[
+    str | None,
+    Query(
+        max_length=200,
+        description="comma-separated sections of the plan to return besides its summary (id, method, success, "
+        f"message, metrics, ...): any of {', '.join(f'`{name}`' for name in PLAN_SECTIONS)}; default all, "
+        "empty for the summary only",
+        examples=["replay"],
+    ),
+]
+
+
+def parse_fields(fields: str | None) -> set[str]:
+    """The sections asked for; unknown names are a 422 naming the valid ones."""
+    if fields is None:
+        return set(PLAN_SECTIONS)
+    names = {name.strip() for name in fields.split(",") if name.strip()}
+    unknown = sorted(names - set(PLAN_SECTIONS))
+    if unknown:
+        msg = f"unknown section(s) {', '.join(unknown)}; valid: {', '.join(PLAN_SECTIONS)}"
+        raise ApiValidationError(f"fields: {msg}", [{"loc": ["query", "fields"], "msg": msg}])
+    return names
+
+
+SUMMARY_COLUMNS = (Plan.id, Plan.robot_id, Plan.method, Plan.success, Plan.message, Plan.metrics, Plan.elapsed_s, Plan.created_at)
+
+
 def plan_summary(p: Plan) -> PlanSummary:
     return PlanSummary(
         id=p.id,
@@ -79,8 +116,13 @@ def plan_summary(p: Plan) -> PlanSummary:
     )
 
 
-def plan_out(p: Plan) -> PlanOut:
-    return PlanOut(**plan_summary(p).model_dump(), trajectory=p.trajectory, replay=p.replay)  # type: ignore[arg-type]
+def plan_json(summary: PlanSummary, sections: dict[str, Any], raw_trajectory: str | None = None) -> bytes:
+    """The JSON body of a plan: its summary and ``sections`` (numpy arrays allowed), and a
+    trajectory that is already JSON text spliced in as it is."""
+    body = jsonio.dumps({**summary.model_dump(mode="json"), **sections})
+    if raw_trajectory is None:
+        return body
+    return body[:-1] + b',"trajectory":' + raw_trajectory.encode() + b"}"
 
 
 @router.post(
@@ -91,7 +133,18 @@ def plan_out(p: Plan) -> PlanOut:
     summary="Plan a Cartesian task (synchronous) and store the plan",
     responses=responses(404, 422),
 )
-def create_plan(body: PlanRequest, session: SessionDep, settings: SettingsDep, response: Response) -> PlanOut:
+def create_plan(body: PlanRequest, session: SessionDep, settings: SettingsDep, fields: FieldsQuery = None) -> Response:
+    sections = parse_fields(fields)
+    row, trajectory = compute_plan(session, body, settings)
+    session.add(row)
+    session.commit()  # before the response goes out: a client's next request must see it
+    parts = {"trajectory": trajectory, "replay": row.replay}
+    content = plan_json(plan_summary(row), {name: parts[name] for name in PLAN_SECTIONS if name in sections})
+    return Response(content, status_code=201, media_type="application/json", headers={"Location": f"/v1/plans/{row.id}"})
+
+
+def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tuple[Plan, dict[str, np.ndarray]]:
+    """Plan (and replay) a request: the row to store and the trajectory arrays."""
     robot_id, model = resolve_robot(session, body.robot_id, body.robot)
     task = build_task(model, body.task)
     inverse = check_method(body.method.name, body.method.params)
@@ -114,6 +167,7 @@ def create_plan(body: PlanRequest, session: SessionDep, settings: SettingsDep, r
         raise ApiValidationError(str(exc), [{"loc": loc, "msg": exc.reason}]) from None
     except ValueError as exc:
         raise ApiValidationError(str(exc), [{"loc": ["body"], "msg": str(exc)}]) from None
+    trajectory = trajectory_out(result)
     row = Plan(
         robot_id=robot_id,
         request=clean(body.model_dump(mode="json")),
@@ -121,14 +175,27 @@ def create_plan(body: PlanRequest, session: SessionDep, settings: SettingsDep, r
         success=result.success,
         message=result.message,
         metrics=metrics_out(result.metrics),
-        trajectory=trajectory_out(result),
+        trajectory=trajectory,
         replay=replay_out(checked) if checked is not None else (not_replayed(skipped) if skipped else None),
         elapsed_s=elapsed,
     )
-    session.add(row)
-    session.commit()  # before the response goes out: a client's next request must see it
-    response.headers["Location"] = f"/v1/plans/{row.id}"
-    return plan_out(row)
+    return row, trajectory
+
+
+def rehearse(db: Database, settings: Settings) -> None:
+    """Take the OpenAPI example of a plan request through every step of :func:`create_plan`,
+    the database insert included, and roll it back: the API's start-up runs it so that the first
+    real request finds the connection, the compiled statements and the code paths warm."""
+    body = PlanRequest.model_validate(PlanRequest.model_config["json_schema_extra"]["examples"][0])  # type: ignore[index]
+    with db.sessionmaker() as session:
+        try:
+            row, trajectory = compute_plan(session, body, settings)
+            session.add(row)
+            session.flush()
+            plan_json(plan_summary(row), {"trajectory": trajectory, "replay": row.replay})
+            session.execute(select(*SUMMARY_COLUMNS, Plan.replay, cast(Plan.trajectory, Text)).where(Plan.id == row.id)).first()
+        finally:
+            session.rollback()
 
 
 @router.get("", operation_id="list_plans", response_model=PlanList, summary="List stored plans (without trajectories)")
@@ -145,9 +212,18 @@ def list_plans(
     return PlanList(items=[PlanSummary(**r._asdict()) for r in rows], total=total)
 
 
-@router.get("/{plan_id}", operation_id="get_plan", response_model=PlanOut, summary="Get a stored plan", responses=responses(404))
-def get_plan(plan_id: str, session: SessionDep) -> PlanOut:
-    row = session.get(Plan, plan_id)
-    if row is None:
+@router.get(
+    "/{plan_id}", operation_id="get_plan", response_model=PlanOut, summary="Get a stored plan", responses=responses(404, 422)
+)
+def get_plan(plan_id: str, session: SessionDep, fields: FieldsQuery = None) -> Response:
+    sections = parse_fields(fields)
+    columns: list[Any] = [*SUMMARY_COLUMNS, Plan.replay]
+    if "trajectory" in sections:
+        columns.append(cast(Plan.trajectory, Text))  # the stored JSON text, not parsed and written again
+    found = session.execute(select(*columns).where(Plan.id == plan_id)).first()
+    if found is None:
         raise NotFoundError("plan", plan_id)
-    return plan_out(row)
+    summary = PlanSummary(**{c.key: v for c, v in zip(SUMMARY_COLUMNS, found, strict=False)})
+    extra = {"replay": found[len(SUMMARY_COLUMNS)]} if "replay" in sections else {}
+    raw = found[-1] if "trajectory" in sections else None
+    return Response(plan_json(summary, extra, raw), media_type="application/json")

@@ -87,12 +87,13 @@ class Stack:
     def start_api(self) -> None:
         self.port = free_port()
         self.api = Proc(["serve", "--host", "127.0.0.1", "--port", str(self.port)], self.env, self.dir / "api.log")
-        deadline = time.monotonic() + 30
+        # Ready for tests once it answers and its kernels are in (the database may be at any state).
+        deadline = time.monotonic() + 300
         while time.monotonic() < deadline:
             try:
-                if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
+                if httpx.get(self.url + "/readyz", timeout=1).json().get("kernels") == "ok":
                     return
-            except httpx.HTTPError:
+            except (httpx.HTTPError, ValueError):
                 pass
             if self.api.popen.poll() is not None:
                 break

@@ -6,6 +6,7 @@ import copy
 import math
 import threading
 import time
+from collections.abc import Callable
 
 import httpx
 import pytest
@@ -24,11 +25,16 @@ def _problem(r: httpx.Response, status: int) -> dict:
     return body
 
 
+def plan_path(response: httpx.Response) -> str:
+    return f"/v1/plans/{response.json()['id']}"
+
+
 def test_health_and_ready(client: httpx.Client) -> None:
     assert client.get("/healthz").json()["status"] == "ok"
     ready = client.get("/readyz")
     assert ready.status_code == 200
     assert ready.json()["revision"] == ready.json()["head"] == "0001"
+    assert ready.json()["kernels"] == "ok"
 
 
 def test_robots_crud(client: httpx.Client) -> None:
@@ -216,10 +222,47 @@ def test_plan_objective_attitude_term(client: httpx.Client) -> None:
     _problem(client.post("/v1/plans", json={**body, "attitude_term": "rpy"}), 422)
 
 
-def test_long_plans_are_not_replayed_synchronously(client: httpx.Client) -> None:
-    body = {"robot_id": "table1", "task": {**PAPER_TASK, "dt_s": 0.005}, "method": {"name": "dls"}, "replay": True}
-    r = client.post("/v1/plans", json=body)
+def test_a_20000_step_plan_is_replayed_and_fields_leave_the_trajectory_out(client: httpx.Client) -> None:
+    """The longest plan the API accepts is replayed synchronously by default (the compiled
+    replay takes about a second); ``fields=replay`` returns it without the trajectory."""
+    task = {**PAPER_TASK, "duration_s": 500.0, "ramp_time_s": 50.0, "dt_s": 0.025}
+    body = {"robot_id": "table1", "task": task, "method": {"name": "dls", "params": {"lambda": 0.05}}, "replay": True}
+    r = client.post("/v1/plans", params={"fields": "replay"}, json=body)
     assert r.status_code == 201, r.text
-    replay = r.json()["replay"]
-    assert replay["success"] is False and "3000 steps" in replay["message"] and "SPACEARM_MAX_REPLAY_STEPS" in replay["message"]
-    assert len(r.json()["trajectory"]["t_s"]) == 3001
+    plan = r.json()
+    assert "trajectory" not in plan and plan["replay"]["success"] is True
+    assert plan["replay"]["plan_gap_position_max_m"] < 1e-6
+    summary = client.get(plan_path(r), params={"fields": ""}).json()
+    assert set(summary) == {"id", "robot_id", "method", "success", "message", "metrics", "elapsed_s", "created_at"}
+    full = client.get(plan_path(r)).json()
+    assert len(full["trajectory"]["t_s"]) == 20001 and full["replay"] == plan["replay"]
+
+
+def test_plans_longer_than_the_replay_limit_are_not_replayed(make_stack: Callable[..., Stack]) -> None:
+    stack = make_stack()
+    stack.env["SPACEARM_MAX_REPLAY_STEPS"] = "100"
+    stack.start_api()
+    with stack.client() as c:
+        body = {"robot_id": "table1", "task": {**PAPER_TASK, "dt_s": 0.125}, "method": {"name": "dls"}, "replay": True}
+        r = c.post("/v1/plans", json=body)
+        assert r.status_code == 201, r.text
+        replay = r.json()["replay"]
+        assert replay["success"] is False
+        assert "120 steps" in replay["message"] and "SPACEARM_MAX_REPLAY_STEPS" in replay["message"]
+        assert len(r.json()["trajectory"]["t_s"]) == 121
+
+
+def test_plan_fields(client: httpx.Client) -> None:
+    body = {"robot_id": "table1", "task": PAPER_TASK, "method": {"name": "adaptive"}, "replay": True}
+    created = client.post("/v1/plans", json=body)
+    assert created.status_code == 201 and created.headers["location"] == plan_path(created)
+    full = created.json()
+    assert set(full) >= {"id", "metrics", "trajectory", "replay"}
+    # The stored trajectory comes back as stored (NaN as null), the same as the POST answered.
+    assert client.get(plan_path(created)).json() == full
+    assert "replay" not in client.get(plan_path(created), params={"fields": "trajectory"}).json()
+    only_replay = client.get(plan_path(created), params={"fields": " replay ,"}).json()
+    assert "trajectory" not in only_replay and only_replay["replay"] == full["replay"]
+    body_422 = _problem(client.get(plan_path(created), params={"fields": "trajectory,joints"}), 422)
+    assert body_422["errors"][0]["field"] == "query.fields" and "joints" in body_422["errors"][0]["message"]
+    _problem(client.post("/v1/plans", params={"fields": "everything"}, json=body), 422)

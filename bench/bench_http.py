@@ -1,0 +1,124 @@
+"""HTTP benchmark: `POST /v1/plans` of the paper task against a live server, p50/p95 latency and
+plans per second with 1, 4 and 16 concurrent clients, replay false and true; the ratio of the
+replay-true p50 to the replay-false p50 (target: at most 2), and the first request after the
+server says it is ready against the steady state (target: at most 2).
+
+Run: `.venv/bin/python bench/bench_http.py` (starts its own API on a temporary SQLite file) or
+`.venv/bin/python bench/bench_http.py --url http://127.0.0.1:8000` against a running server.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from service.schemas import PAPER_TASK_EXAMPLE
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def body(replay: bool) -> dict[str, Any]:
+    return {
+        "robot_id": "table1",
+        "task": PAPER_TASK_EXAMPLE,
+        "method": {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}},
+        "replay": replay,
+    }
+
+
+def start_server(directory: Path) -> tuple[subprocess.Popen[bytes], str]:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "SPACEARM_DATABASE_URL": f"sqlite:///{directory / 'bench.db'}"}
+    subprocess.run([sys.executable, "-m", "service", "migrate"], cwd=ROOT, env=env, check=True, capture_output=True)
+    log = (directory / "api.log").open("wb")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service", "serve", "--port", str(port)], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT
+    )
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(url + "/readyz", timeout=1).status_code == 200:
+                return proc, url
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.2)
+    proc.kill()
+    raise RuntimeError("the API did not become ready")
+
+
+def run(url: str, clients: int, per_client: int, replay: bool) -> tuple[list[float], float]:
+    latencies: list[float] = []
+    lock = threading.Lock()
+    payload = json.dumps(body(replay))
+
+    def client() -> None:
+        with httpx.Client(base_url=url, timeout=120) as c:
+            for _ in range(per_client):
+                start = time.perf_counter()
+                r = c.post("/v1/plans", content=payload, headers={"content-type": "application/json"})
+                elapsed = time.perf_counter() - start
+                if r.status_code != 201:
+                    raise RuntimeError(f"{r.status_code}: {r.text[:300]}")
+                with lock:
+                    latencies.append(elapsed)
+
+    threads = [threading.Thread(target=client) for _ in range(clients)]
+    start = time.perf_counter()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return latencies, time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--url", help="a running server; otherwise one is started on a temporary database")
+    parser.add_argument("--requests", type=int, default=48, help="requests per scenario")
+    args = parser.parse_args()
+    proc = None
+    tmp = tempfile.TemporaryDirectory()
+    url = args.url
+    if url is None:
+        proc, url = start_server(Path(tmp.name))
+    try:
+        first, _ = run(url, 1, 1, True)  # the first request after /readyz
+        run(url, 2, 4, True)  # warm-up: connections, caches
+        print(f"POST /v1/plans, paper task, {args.requests} requests per scenario against {url}")
+        print(f"{'replay':>6} {'clients':>7} {'p50 ms':>8} {'p95 ms':>8} {'plans/s':>8}")
+        p50 = {}
+        for replay in (False, True):
+            for clients in (1, 4, 16):
+                latencies, wall = run(url, clients, max(1, args.requests // clients), replay)
+                q = statistics.quantiles(latencies, n=20)
+                median = p50[(replay, clients)] = statistics.median(latencies)
+                print(f"{replay!s:>6} {clients:7d} {median * 1e3:8.1f} {q[18] * 1e3:8.1f} {len(latencies) / wall:8.1f}")
+        print(f"replay true / replay false, p50 with one client: {p50[(True, 1)] / p50[(False, 1)]:.2f} (target <= 2)")
+        print(
+            f"first request after /readyz (replay true): {first[0] * 1e3:.1f} ms, "
+            f"{first[0] / p50[(True, 1)]:.2f}x the steady-state p50 (target <= 2)"
+        )
+    finally:
+        if proc is not None:
+            proc.terminate()
+            proc.wait(10)
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()

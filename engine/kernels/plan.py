@@ -1,0 +1,365 @@
+"""The planner's step loop (the paper's Figure 2) for one parameter set, with running metrics.
+
+At each sample ``t_k = k dt`` (k = 0..N): the kinematics and GJM at ``q_k`` in the base frame
+(base attitude the identity, system CoM at the origin: both follow from rigid motions, so the
+world quantities are rotations of these by the base attitude ``A_0`` and a shift by the fixed
+system CoM); the commanded twist (the path's mean twist over the step plus ``gain *
+pose_error``) rotated into the base frame; the thin SVD (warm-started) and the robust inverse,
+giving ``qd_k``. Then the paper's joint update ``q_{k+1} = q_k + qd_k dt`` and the base attitude
+integrated over the step along that linear joint motion: the base angular velocity in the base
+frame, ``w_b(t) = Omega_b(q_k + (t - t_k) qd_k) qd_k``, depends on the joints only, so
+``dA_0/dt = A_0 [w_b]x`` is integrated with the fourth-order Magnus method on Simpson's nodes,
+``A_0 <- A_0 exp(h/6 (w_a + 4 w_m + w_b) + h^2/12 w_a x w_b)``, on sub-steps ``h`` short enough
+that no joint turns more than ``SUBSTEP_ANGLE`` in one (one sub-step in ordinary plans; the end
+point is the next step's configuration, so a sub-step costs one extra evaluation).
+
+Metrics are accumulated as the plan runs (no per-sample storage needed): errors (max, RMS,
+final), per-joint peak speeds, the smallest singular value and |det J_g| with their times.
+A non-finite Jacobian or joint rate ends the plan as diverged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.kernels.chain import angular_map, gjm, gjm_buffers, kinematics, kinematics_buffers
+from engine.kernels.inverse import apply_inverse
+from engine.kernels.jit import kernel
+from engine.kernels.linalg import det6
+from engine.kernels.so3 import exp_so3, log_so3
+from engine.kernels.svd import jacobi_svd, svd_buffers
+
+SUBSTEP_ANGLE = 0.25  # rad of joint travel per attitude sub-step
+MAX_SUBSTEPS = 64
+REFRESH_EVERY = 16  # steps between re-orthonormalisations of the SVD's warm start
+
+# Layout of a plan's metrics vector.
+POS_MAX, POS_RMS, POS_FINAL = 0, 1, 2
+ATT_MAX, ATT_RMS, ATT_FINAL = 3, 4, 5
+CPL_MAX, CPL_RMS, CPL_FINAL = 6, 7, 8
+MAX_SPEED, MAX_SPEED_JOINT = 9, 10
+MIN_SIGMA, T_MIN_SIGMA = 11, 12
+MIN_DET, T_MIN_DET = 13, 14
+FINITE, T_DIVERGED = 15, 16
+N_METRICS = 17
+
+
+@kernel
+def _body_rate(ch, q, qd, kin, g, eye, zero, out):
+    """``out = Omega_b(q) qd``: the base angular velocity in the base frame."""
+    kinematics(ch, q, eye, zero, True, kin)
+    angular_map(ch, kin, g)
+    Omega = g[2]
+    for r in range(3):
+        acc = 0.0
+        for j in range(qd.shape[0]):
+            acc += Omega[r, j] * qd[j]
+        out[r] = acc
+
+
+@kernel
+def advance_buffers(n):
+    """Scratch for :func:`advance`: ``(q_sub (n,), w_a, w_m, w_b, phi (3,), R, A_tmp (3, 3),
+    eye (3, 3), zero (3,))``."""
+    return (
+        np.empty(n),
+        np.empty(3),
+        np.empty(3),
+        np.empty(3),
+        np.empty(3),
+        np.empty((3, 3)),
+        np.empty((3, 3)),
+        np.eye(3),
+        np.zeros(3),
+    )
+
+
+@kernel
+def advance(ch, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work):
+    """One planner step from ``q (n,)``: ``q_next = q + qd dt``, whose base-frame kinematics
+    and GJM go to ``kin`` and ``g`` (which on entry hold those of ``q``), and the base attitude
+    ``A0 (3, 3)`` advanced in place along the joint line ``q + (t - t_k) qd`` by fourth-order
+    Magnus on Simpson's nodes over sub-steps of at most ``SUBSTEP_ANGLE`` joint travel.
+
+    ``dA_0/dt = A_0 [w_b]x`` with the base-frame rate ``w_b = Omega_b(q(t)) qd`` (it does not
+    depend on ``A_0``); over a sub-step ``h`` from ``w_a`` via ``w_m`` to ``w_b``:
+    ``A_0 <- A_0 exp(h/6 (w_a + 4 w_m + w_b) + h^2/12 w_a x w_b)``.
+    """
+    q_sub, wa, wm, wb, phi, R, A_tmp, eye, zero = work
+    n = q.shape[0]
+    Omega = g[2]
+    travel = 0.0
+    for j in range(n):
+        travel = max(travel, abs(qd[j]) * dt)
+    S = min(MAX_SUBSTEPS, max(1, int(np.ceil(travel / SUBSTEP_ANGLE))))
+    h = dt / S
+    for r in range(3):
+        acc = 0.0
+        for j in range(n):
+            acc += Omega[r, j] * qd[j]
+        wa[r] = acc
+    for sub in range(S):
+        ta = sub * h
+        for j in range(n):
+            q_sub[j] = q[j] + qd[j] * (ta + 0.5 * h)
+        _body_rate(ch, q_sub, qd, kin_m, g_m, eye, zero, wm)
+        if sub == S - 1:
+            for j in range(n):
+                q_next[j] = q[j] + qd[j] * dt
+            kinematics(ch, q_next, eye, zero, True, kin)
+            gjm(ch, kin, g)
+            for r in range(3):
+                acc = 0.0
+                for j in range(n):
+                    acc += Omega[r, j] * qd[j]
+                wb[r] = acc
+        else:
+            for j in range(n):
+                q_sub[j] = q[j] + qd[j] * (ta + h)
+            _body_rate(ch, q_sub, qd, kin_m, g_m, eye, zero, wb)
+        h6 = h / 6.0
+        h12 = h * h / 12.0
+        phi[0] = h6 * (wa[0] + 4.0 * wm[0] + wb[0]) + h12 * (wa[1] * wb[2] - wa[2] * wb[1])
+        phi[1] = h6 * (wa[1] + 4.0 * wm[1] + wb[1]) + h12 * (wa[2] * wb[0] - wa[0] * wb[2])
+        phi[2] = h6 * (wa[2] + 4.0 * wm[2] + wb[2]) + h12 * (wa[0] * wb[1] - wa[1] * wb[0])
+        exp_so3(phi, R)
+        for r in range(3):
+            for c in range(3):
+                A_tmp[r, c] = A0[r, 0] * R[0, c] + A0[r, 1] * R[1, c] + A0[r, 2] * R[2, c]
+        for r in range(3):
+            for c in range(3):
+                A0[r, c] = A_tmp[r, c]
+        for r in range(3):
+            wa[r] = wb[r]
+
+
+@kernel
+def base_attitude_step(ch, q, qd, dt, A0):
+    """The base attitude after one planner step of ``dt`` from ``q`` with ``qd`` (for tests)."""
+    n = q.shape[0]
+    kin = kinematics_buffers(n)
+    g = gjm_buffers(n)
+    kinematics(ch, q, np.eye(3), np.zeros(3), True, kin)
+    gjm(ch, kin, g)
+    A = A0.copy()
+    advance(ch, q, qd, dt, A, kin, g, kinematics_buffers(n), gjm_buffers(n), np.empty(n), advance_buffers(n))
+    return A
+
+
+@kernel
+def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, trace, metrics):
+    """Plan one parameter set. ``twists (N+1, 6)`` commanded path twists and ``p_des (N+1, 3)``,
+    ``A_des (N+1, 3, 3)`` desired poses (world); ``gain`` the pose feedback gain (1/s).
+
+    ``metrics (N_METRICS,)`` is always written. With ``record``, ``trace`` (a tuple of
+    ``q (N+1, n)``, ``qd``, ``base_p (N+1, 3)``, ``base_A (N+1, 3, 3)``, ``ee_p``, ``ee_A``,
+    ``sv (N+1, m)``, ``det (N+1,)``, ``damping (N+1, m)``, ``pos_err (N+1,)``, ``att_err``)
+    receives every sample; samples after a divergence are NaN.
+    """
+    tr_q, tr_qd, tr_bp, tr_bA, tr_ep, tr_eA, tr_sv, tr_det, tr_damp, tr_perr, tr_aerr = trace
+    n = q0.shape[0]
+    m = min(6, n)
+    N = twists.shape[0] - 1
+    eye = np.eye(3)
+    zero = np.zeros(3)
+    kin = kinematics_buffers(n)
+    g = gjm_buffers(n)
+    kin_m = kinematics_buffers(n)
+    g_m = gjm_buffers(n)
+    sv = svd_buffers(n)
+    q = q0.copy()
+    q_next = np.empty(n)
+    qd = np.empty(n)
+    damping = np.empty(m)
+    peak = np.zeros(n)
+    work = advance_buffers(n)
+    A0 = np.eye(3)
+    ee_p = np.empty(3)
+    ee_A = np.empty((3, 3))
+    base_p = np.empty(3)
+    D = np.empty((3, 3))
+    dphi = np.empty(3)
+    xdot_w = np.empty(6)
+    xdot_b = np.empty(6)
+    inv_scratch = np.empty((2, 6))
+    det_scratch = np.empty((6, 6))
+
+    kinematics(ch, q, eye, zero, True, kin)
+    gjm(ch, kin, g)
+    _, com_b, _, _, ee_p_b, ee_A_b = kin
+    J_b = g[0]
+    com_w = np.empty(3)
+    for r in range(3):
+        com_w[r] = -com_b[0, r]  # the base starts at the world origin with the identity attitude
+
+    pos_max = 0.0
+    att_max = 0.0
+    cpl_max = 0.0
+    pos_sq = 0.0
+    att_sq = 0.0
+    cpl_sq = 0.0
+    pos_e = 0.0
+    att_e = 0.0
+    cpl_e = 0.0
+    min_sigma = np.inf
+    t_min_sigma = np.nan
+    min_det = np.inf
+    t_min_det = np.nan
+    finite = True
+    t_div = np.nan
+    last = N
+    for k in range(N + 1):
+        t_k = k * dt
+        # World pose: A_0 times the base-frame pose, shifted by the fixed system CoM.
+        for r in range(3):
+            base_p[r] = com_w[r] + A0[r, 0] * com_b[0, 0] + A0[r, 1] * com_b[0, 1] + A0[r, 2] * com_b[0, 2]
+            ee_p[r] = com_w[r] + A0[r, 0] * ee_p_b[0] + A0[r, 1] * ee_p_b[1] + A0[r, 2] * ee_p_b[2]
+            for c in range(3):
+                ee_A[r, c] = A0[r, 0] * ee_A_b[0, c] + A0[r, 1] * ee_A_b[1, c] + A0[r, 2] * ee_A_b[2, c]
+        # Tracking errors: dp = p - p_d, dphi = log(A A_d^T) (world axes).
+        for r in range(3):
+            for c in range(3):
+                D[r, c] = ee_A[r, 0] * A_des[k, c, 0] + ee_A[r, 1] * A_des[k, c, 1] + ee_A[r, 2] * A_des[k, c, 2]
+        log_so3(D, dphi)
+        sq_p = 0.0
+        sq_a = 0.0
+        sq_c = 0.0
+        for r in range(3):
+            dp = ee_p[r] - p_des[k, r]
+            sq_p += dp * dp
+            sq_a += dphi[r] * dphi[r]
+            sq_c += (dp * dphi[r]) * (dp * dphi[r])
+            xdot_w[r] = twists[k, r] + gain * (-dp)
+            xdot_w[r + 3] = twists[k, r + 3] + gain * (-dphi[r])
+        pos_e = np.sqrt(sq_p)
+        att_e = np.sqrt(sq_a)
+        cpl_e = np.sqrt(sq_c)
+        pos_max = max(pos_max, pos_e)
+        att_max = max(att_max, att_e)
+        cpl_max = max(cpl_max, cpl_e)
+        pos_sq += pos_e * pos_e
+        att_sq += att_e * att_e
+        cpl_sq += cpl_e * cpl_e
+        for r in range(3):
+            xdot_b[r] = A0[0, r] * xdot_w[0] + A0[1, r] * xdot_w[1] + A0[2, r] * xdot_w[2]
+            xdot_b[r + 3] = A0[0, r] * xdot_w[3] + A0[1, r] * xdot_w[4] + A0[2, r] * xdot_w[5]
+        ok, _ = jacobi_svd(J_b, sv, k % REFRESH_EVERY == 0)
+        s = sv[2]
+        if ok:
+            apply_inverse(method, params, J_b, sv[1], s, sv[3], xdot_b, qd, damping, inv_scratch)
+            for j in range(n):
+                if not np.isfinite(qd[j]):
+                    ok = False
+        else:
+            qd[:] = np.nan
+            damping[:] = np.nan
+        ok = ok and np.isfinite(pos_e) and np.isfinite(att_e)
+        det = np.nan
+        if n == 6 and np.isfinite(s[0]):
+            det = det6(J_b, det_scratch)
+        if record:
+            for j in range(n):
+                tr_q[k, j] = q[j]
+                tr_qd[k, j] = qd[j]
+            for r in range(3):
+                tr_bp[k, r] = base_p[r]
+                tr_ep[k, r] = ee_p[r]
+                for c in range(3):
+                    tr_bA[k, r, c] = A0[r, c]
+                    tr_eA[k, r, c] = ee_A[r, c]
+            for i in range(m):
+                tr_sv[k, i] = s[i]
+                tr_damp[k, i] = damping[i]
+            tr_det[k] = det
+            tr_perr[k] = pos_e
+            tr_aerr[k] = att_e
+        for j in range(n):
+            v = abs(qd[j])
+            if not v <= peak[j]:  # NaN counts as exceeding
+                peak[j] = v if np.isfinite(v) else np.inf
+        if s[m - 1] < min_sigma:
+            min_sigma = s[m - 1]
+            t_min_sigma = t_k
+        if abs(det) < min_det:
+            min_det = abs(det)
+            t_min_det = t_k
+        if not ok:
+            finite = False
+            t_div = t_k
+            last = k
+            break
+        if k == N:
+            break
+        # Joints: the paper's explicit update. Base attitude: Magnus along the joint line.
+        advance(ch, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work)
+        for j in range(n):
+            q[j] = q_next[j]
+        _, com_b, _, _, ee_p_b, ee_A_b = kin
+
+    if record:
+        for k in range(last + 1, N + 1):
+            tr_q[k] = np.nan
+            tr_qd[k] = np.nan
+            tr_bp[k] = np.nan
+            tr_bA[k] = np.nan
+            tr_ep[k] = np.nan
+            tr_eA[k] = np.nan
+            tr_sv[k] = np.nan
+            tr_det[k] = np.nan
+            tr_damp[k] = np.nan
+            tr_perr[k] = np.nan
+            tr_aerr[k] = np.nan
+    count = N + 1
+    if finite:
+        metrics[POS_MAX] = pos_max
+        metrics[POS_RMS] = np.sqrt(pos_sq / count)
+        metrics[POS_FINAL] = pos_e
+        metrics[ATT_MAX] = att_max
+        metrics[ATT_RMS] = np.sqrt(att_sq / count)
+        metrics[ATT_FINAL] = att_e
+        metrics[CPL_MAX] = cpl_max
+        metrics[CPL_RMS] = np.sqrt(cpl_sq / count)
+        metrics[CPL_FINAL] = cpl_e
+    else:
+        for i in range(CPL_FINAL + 1):
+            metrics[i] = np.nan
+    best = 0
+    for j in range(1, n):
+        if peak[j] > peak[best]:
+            best = j
+    metrics[MAX_SPEED] = peak[best]
+    metrics[MAX_SPEED_JOINT] = best
+    metrics[MIN_SIGMA] = min_sigma
+    metrics[T_MIN_SIGMA] = t_min_sigma
+    metrics[MIN_DET] = min_det if n == 6 else np.nan
+    metrics[T_MIN_DET] = t_min_det if n == 6 else np.nan
+    metrics[FINITE] = 1.0 if finite else 0.0
+    metrics[T_DIVERGED] = t_div
+
+
+@kernel
+def empty_trace(n):
+    """A trace tuple with no samples (for evaluations that keep only metrics)."""
+    m = min(6, n)
+    return (
+        np.empty((0, n)),
+        np.empty((0, n)),
+        np.empty((0, 3)),
+        np.empty((0, 3, 3)),
+        np.empty((0, 3)),
+        np.empty((0, 3, 3)),
+        np.empty((0, m)),
+        np.empty(0),
+        np.empty((0, m)),
+        np.empty(0),
+        np.empty(0),
+    )
+
+
+@kernel
+def evaluate_range(ch, q0, twists, p_des, A_des, dt, gain, method, params, start, stop, out):
+    """Metrics ``out[b] (N_METRICS,)`` of parameter sets ``params[b]`` for ``b`` in
+    ``[start, stop)``, no traces kept: memory independent of the number of steps."""
+    trace = empty_trace(q0.shape[0])
+    for b in range(start, stop):
+        simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params[b], False, trace, out[b])

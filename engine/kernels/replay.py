@@ -1,0 +1,331 @@
+"""The replay's compiled right-hand side and integrator.
+
+Independent of the planner's formulation: the base twist comes from the textbook 6x6 momentum
+equations ``H_b [v_0; w_0] + H_bm qd = 0`` (Umetani and Yoshida 1989) summed body by body, with
+momenta about the base CoM, and is integrated as a state (the base position too, so the drift
+of the system CoM is a check, not an assumption). The base attitude is a unit quaternion with
+``dq/dt = 1/2 [0, w] (x) q`` (world-frame ``w``). Only the forward kinematics are shared with
+the planner (they are checked against Pinocchio on their own).
+
+The integrator is Dormand and Prince's DOP853 (Hairer, Norsett and Wanner, Solving ODEs I,
+II.10) with the coefficients and the step-size control of ``scipy.integrate.solve_ivp``
+(``method="DOP853"``), run on each plan step separately (the joint rates jump at the samples).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.integrate._ivp import dop853_coefficients as _dop
+
+from engine.kernels.chain import kinematics, kinematics_buffers
+from engine.kernels.jit import kernel
+from engine.kernels.linalg import solve6
+from engine.kernels.so3 import quaternion_to_matrix
+
+N_STAGES = _dop.N_STAGES
+A = np.ascontiguousarray(_dop.A[:N_STAGES, :N_STAGES])
+B = np.ascontiguousarray(_dop.B)
+C = np.ascontiguousarray(_dop.C[:N_STAGES])
+E3 = np.ascontiguousarray(_dop.E3)
+E5 = np.ascontiguousarray(_dop.E5)
+SAFETY = 0.9
+MIN_FACTOR = 0.2
+MAX_FACTOR = 10.0
+ERROR_EXPONENT = -1.0 / 8.0  # the error estimator is of order 7
+MAX_STEPS_PER_INTERVAL = 100_000
+
+OK, STEP_TOO_SMALL, TOO_MANY_STEPS, SINGULAR = 0, 1, 2, 3
+
+
+@kernel
+def _joint_motion(ch, kin, qd, v_j, w_j):
+    """Velocities of each body's CoM ``v_j (n+1, 3)`` and angular velocities ``w_j (n+1, 3)``
+    from the joint rates alone (base held still): joint j moves bodies j+1..n."""
+    _, com, jpos, jaxis, _, _ = kin
+    n = qd.shape[0]
+    for r in range(3):
+        v_j[0, r] = 0.0
+        w_j[0, r] = 0.0
+    for i in range(1, n + 1):
+        for r in range(3):
+            v_j[i, r] = 0.0
+            w_j[i, r] = 0.0
+        for j in range(i):
+            k = jaxis[j]
+            d0 = com[i, 0] - jpos[j, 0]
+            d1 = com[i, 1] - jpos[j, 1]
+            d2 = com[i, 2] - jpos[j, 2]
+            v_j[i, 0] += qd[j] * (k[1] * d2 - k[2] * d1)
+            v_j[i, 1] += qd[j] * (k[2] * d0 - k[0] * d2)
+            v_j[i, 2] += qd[j] * (k[0] * d1 - k[1] * d0)
+            for r in range(3):
+                w_j[i, r] += qd[j] * k[r]
+
+
+@kernel
+def _world_inertia(ch, i, A, out):
+    """``out = A I_i A^T``."""
+    inertia = ch.inertias[i]
+    tmp = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            tmp[r, c] = inertia[r, 0] * A[c, 0] + inertia[r, 1] * A[c, 1] + inertia[r, 2] * A[c, 2]
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = A[r, 0] * tmp[0, c] + A[r, 1] * tmp[1, c] + A[r, 2] * tmp[2, c]
+
+
+@kernel
+def base_twist(ch, kin, qd, v_j, w_j, twist):
+    """Base twist ``[v_0; w_0] (6,)`` with zero total momentum: ``H_b x = -H_bm qd``, both
+    summed body by body (momenta about the base CoM). Returns False if ``H_b`` is singular."""
+    att, com, _, _, _, _ = kin
+    n = qd.shape[0]
+    _joint_motion(ch, kin, qd, v_j, w_j)
+    H = np.zeros((6, 6))
+    rhs = np.zeros(6)
+    Iw = np.empty((3, 3))
+    for i in range(n + 1):
+        m = ch.masses[i]
+        x = com[i, 0] - com[0, 0]
+        y = com[i, 1] - com[0, 1]
+        z = com[i, 2] - com[0, 2]
+        _world_inertia(ch, i, att[i], Iw)
+        # linear momentum: m (v_0 + w_0 x rel + v_j) = m v_0 - m [rel]x w_0 + m v_j
+        H[0, 0] += m
+        H[1, 1] += m
+        H[2, 2] += m
+        H[0, 4] += m * z
+        H[0, 5] -= m * y
+        H[1, 3] -= m * z
+        H[1, 5] += m * x
+        H[2, 3] += m * y
+        H[2, 4] -= m * x
+        # angular momentum about the base CoM: I_w w + m rel x v
+        H[3, 1] -= m * z
+        H[3, 2] += m * y
+        H[4, 0] += m * z
+        H[4, 2] -= m * x
+        H[5, 0] -= m * y
+        H[5, 1] += m * x
+        sq = x * x + y * y + z * z
+        rel = (x, y, z)
+        for r in range(3):
+            for c in range(3):
+                H[3 + r, 3 + c] += Iw[r, c] - m * rel[r] * rel[c]
+            H[3 + r, 3 + r] += m * sq
+        vx = v_j[i, 0]
+        vy = v_j[i, 1]
+        vz = v_j[i, 2]
+        rhs[0] -= m * vx
+        rhs[1] -= m * vy
+        rhs[2] -= m * vz
+        rhs[3] -= Iw[0, 0] * w_j[i, 0] + Iw[0, 1] * w_j[i, 1] + Iw[0, 2] * w_j[i, 2] + m * (y * vz - z * vy)
+        rhs[4] -= Iw[1, 0] * w_j[i, 0] + Iw[1, 1] * w_j[i, 1] + Iw[1, 2] * w_j[i, 2] + m * (z * vx - x * vz)
+        rhs[5] -= Iw[2, 0] * w_j[i, 0] + Iw[2, 1] * w_j[i, 1] + Iw[2, 2] * w_j[i, 2] + m * (x * vy - y * vx)
+    return solve6(H, rhs, twist)
+
+
+@kernel
+def _rhs(ch, q_k, qd_k, t_k, t, y, dy, work):
+    """``dy/dt`` of the replay state ``y = [r_0 (3); quaternion (4)]`` at time ``t`` inside the
+    step that starts at ``t_k`` with joint angles ``q_k`` and rates ``qd_k``."""
+    kin, q, A0, v_j, w_j, twist = work
+    for j in range(q.shape[0]):
+        q[j] = q_k[j] + qd_k[j] * (t - t_k)
+    quaternion_to_matrix(y[3:], A0)
+    kinematics(ch, q, A0, y[:3], False, kin)
+    ok = base_twist(ch, kin, qd_k, v_j, w_j, twist)
+    w0 = twist[3]
+    w1 = twist[4]
+    w2 = twist[5]
+    dy[0] = twist[0]
+    dy[1] = twist[1]
+    dy[2] = twist[2]
+    dy[3] = 0.5 * (-w0 * y[4] - w1 * y[5] - w2 * y[6])
+    dy[4] = 0.5 * (y[3] * w0 + w1 * y[6] - w2 * y[5])
+    dy[5] = 0.5 * (y[3] * w1 + w2 * y[4] - w0 * y[6])
+    dy[6] = 0.5 * (y[3] * w2 + w0 * y[5] - w1 * y[4])
+    return ok
+
+
+@kernel
+def _rms(x):
+    acc = 0.0
+    for v in x:
+        acc += v * v
+    return np.sqrt(acc / x.shape[0])
+
+
+@kernel
+def integrate(ch, t, q, qd, ys, rtol, atol):
+    """Replay the plan ``t (N+1,)``, ``q (N+1, n)``, ``qd (N+1, n)``: ``ys[0]`` holds the start
+    state, ``ys[k+1]`` receives the state at ``t[k+1]`` (quaternion normalised). Returns
+    ``(status, failed_step, n_function_evaluations)``."""
+    n = q.shape[1]
+    work = (kinematics_buffers(n), np.empty(n), np.empty((3, 3)), np.empty((n + 1, 3)), np.empty((n + 1, 3)), np.empty(6))
+    dim = 7
+    K = np.empty((N_STAGES + 1, dim))
+    y = np.empty(dim)
+    y_new = np.empty(dim)
+    y_stage = np.empty(dim)
+    f = np.empty(dim)
+    f1 = np.empty(dim)
+    scale = np.empty(dim)
+    nfev = 0
+    h_abs = 0.0
+    for k in range(t.shape[0] - 1):
+        t_k = t[k]
+        t_end = t[k + 1]
+        q_k = q[k]
+        qd_k = qd[k]
+        for i in range(dim):
+            y[i] = ys[k, i]
+        if not _rhs(ch, q_k, qd_k, t_k, t_k, y, f, work):
+            return SINGULAR, k, nfev
+        nfev += 1
+        interval = t_end - t_k
+        if k == 0 or not h_abs > 0.0:
+            # Initial step (Hairer, Norsett and Wanner, II.4), as solve_ivp chooses it; later
+            # steps start from the step size the previous interval ended with.
+            for i in range(dim):
+                scale[i] = atol + abs(y[i]) * rtol
+            d0 = 0.0
+            d1 = 0.0
+            for i in range(dim):
+                d0 += (y[i] / scale[i]) ** 2
+                d1 += (f[i] / scale[i]) ** 2
+            d0 = np.sqrt(d0 / dim)
+            d1 = np.sqrt(d1 / dim)
+            h0 = 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1
+            h0 = min(h0, interval)
+            for i in range(dim):
+                y_stage[i] = y[i] + h0 * f[i]
+            _rhs(ch, q_k, qd_k, t_k, t_k + h0, y_stage, f1, work)
+            nfev += 1
+            d2 = 0.0
+            for i in range(dim):
+                d2 += ((f1[i] - f[i]) / scale[i]) ** 2
+            d2 = np.sqrt(d2 / dim) / h0
+            h1 = max(1e-6, h0 * 1e-3) if d1 <= 1e-15 and d2 <= 1e-15 else (0.01 / max(d1, d2)) ** (1.0 / 8.0)
+            h_abs = min(100.0 * h0, h1, interval)
+        tc = t_k
+        steps = 0
+        while tc < t_end:
+            steps += 1
+            if steps > MAX_STEPS_PER_INTERVAL:
+                return TOO_MANY_STEPS, k, nfev
+            min_step = 10.0 * abs(np.nextafter(tc, np.inf) - tc)
+            if h_abs < min_step:
+                h_abs = min_step
+            rejected = False
+            while True:
+                if h_abs < min_step:
+                    return STEP_TOO_SMALL, k, nfev
+                t_new = tc + h_abs
+                if t_new > t_end:
+                    t_new = t_end
+                h = t_new - tc
+                h_abs = abs(h)
+                # One DOP853 step.
+                for i in range(dim):
+                    K[0, i] = f[i]
+                for s in range(1, N_STAGES):
+                    for i in range(dim):
+                        acc = 0.0
+                        for st in range(s):
+                            acc += K[st, i] * A[s, st]
+                        y_stage[i] = y[i] + acc * h
+                    _rhs(ch, q_k, qd_k, t_k, tc + C[s] * h, y_stage, K[s], work)
+                for i in range(dim):
+                    acc = 0.0
+                    for st in range(N_STAGES):
+                        acc += K[st, i] * B[st]
+                    y_new[i] = y[i] + h * acc
+                _rhs(ch, q_k, qd_k, t_k, t_new, y_new, K[N_STAGES], work)
+                nfev += N_STAGES
+                err5 = 0.0
+                err3 = 0.0
+                for i in range(dim):
+                    sc = atol + max(abs(y[i]), abs(y_new[i])) * rtol
+                    e5 = 0.0
+                    e3 = 0.0
+                    for st in range(N_STAGES + 1):
+                        e5 += K[st, i] * E5[st]
+                        e3 += K[st, i] * E3[st]
+                    err5 += (e5 / sc) ** 2
+                    err3 += (e3 / sc) ** 2
+                error_norm = 0.0 if err5 == 0.0 and err3 == 0.0 else h_abs * err5 / np.sqrt((err5 + 0.01 * err3) * dim)
+                if error_norm < 1.0:
+                    factor = MAX_FACTOR if error_norm == 0.0 else min(MAX_FACTOR, SAFETY * error_norm**ERROR_EXPONENT)
+                    if rejected:
+                        factor = min(1.0, factor)
+                    h_abs *= factor
+                    break
+                h_abs *= max(MIN_FACTOR, SAFETY * error_norm**ERROR_EXPONENT)
+                rejected = True
+            tc = t_new
+            for i in range(dim):
+                y[i] = y_new[i]
+                f[i] = K[N_STAGES, i]
+        norm = np.sqrt(y[3] * y[3] + y[4] * y[4] + y[5] * y[5] + y[6] * y[6])
+        for i in range(3):
+            ys[k + 1, i] = y[i]
+        for i in range(3, 7):
+            ys[k + 1, i] = y[i] / norm
+    return OK, -1, nfev
+
+
+@kernel
+def evaluate_samples(ch, q, qd, ys, ee_p, ee_A, base_A, lin_res, ang_res, com):
+    """At each sample: the end-effector pose, the base attitude, the total linear momentum
+    (N s) and the angular momentum about the world origin (N m s), each summed body by body
+    from the body's own velocity (the base twist solved again at the sample), and the system
+    CoM."""
+    n = q.shape[1]
+    kin = kinematics_buffers(n)
+    v_j = np.empty((n + 1, 3))
+    w_j = np.empty((n + 1, 3))
+    twist = np.empty(6)
+    A0 = np.empty((3, 3))
+    Iw = np.empty((3, 3))
+    for k in range(q.shape[0]):
+        quaternion_to_matrix(ys[k, 3:], A0)
+        kinematics(ch, q[k], A0, ys[k, :3], False, kin)
+        att, bcom, _, _, p_e, A_e = kin
+        for r in range(3):
+            ee_p[k, r] = p_e[r]
+            for c in range(3):
+                ee_A[k, r, c] = A_e[r, c]
+                base_A[k, r, c] = A0[r, c]
+        base_twist(ch, kin, qd[k], v_j, w_j, twist)
+        P = np.zeros(3)
+        L = np.zeros(3)
+        g = np.zeros(3)
+        for i in range(n + 1):
+            m = ch.masses[i]
+            d0 = bcom[i, 0] - bcom[0, 0]
+            d1 = bcom[i, 1] - bcom[0, 1]
+            d2 = bcom[i, 2] - bcom[0, 2]
+            v = np.empty(3)
+            w = np.empty(3)
+            v[0] = twist[0] + (twist[4] * d2 - twist[5] * d1) + v_j[i, 0]
+            v[1] = twist[1] + (twist[5] * d0 - twist[3] * d2) + v_j[i, 1]
+            v[2] = twist[2] + (twist[3] * d1 - twist[4] * d0) + v_j[i, 2]
+            for r in range(3):
+                w[r] = twist[3 + r] + w_j[i, r]
+            _world_inertia(ch, i, att[i], Iw)
+            r0 = bcom[i, 0]
+            r1 = bcom[i, 1]
+            r2 = bcom[i, 2]
+            for r in range(3):
+                P[r] += m * v[r]
+                L[r] += Iw[r, 0] * w[0] + Iw[r, 1] * w[1] + Iw[r, 2] * w[2]
+                g[r] += m * bcom[i, r]
+            L[0] += m * (r1 * v[2] - r2 * v[1])
+            L[1] += m * (r2 * v[0] - r0 * v[2])
+            L[2] += m * (r0 * v[1] - r1 * v[0])
+        lin_res[k] = np.sqrt(P[0] * P[0] + P[1] * P[1] + P[2] * P[2])
+        ang_res[k] = np.sqrt(L[0] * L[0] + L[1] * L[1] + L[2] * L[2])
+        for r in range(3):
+            com[k, r] = g[r] / ch.total_mass

@@ -1,0 +1,1 @@
+"""The former numpy engine, kept as an independent oracle for the compiled kernels (tests only)."""

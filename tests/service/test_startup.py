@@ -1,0 +1,51 @@
+"""Start-up: the API loads the engine's kernels in the background; liveness answers at once,
+readiness only once they are in (or says why they failed)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+import engine
+from service.app import create_app
+from service.migrate import upgrade
+from service.settings import Settings
+
+
+def _app(tmp_path: Path) -> TestClient:
+    url = f"sqlite:///{tmp_path / 'startup.db'}"
+    upgrade(url, "head")
+    return TestClient(create_app(Settings(database_url=url)))
+
+
+def test_ready_only_once_the_kernels_are_loaded(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = threading.Event()
+    monkeypatch.setattr(engine, "warm_up", lambda: float(gate.wait(30)))
+    with _app(tmp_path) as client:
+        assert client.get("/healthz").status_code == 200
+        loading = client.get("/readyz")
+        assert loading.status_code == 503 and loading.json() == {"status": "unavailable", "kernels": "loading"}
+        gate.set()
+        deadline = time.monotonic() + 10
+        while client.get("/readyz").status_code != 200:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        assert client.get("/readyz").json()["kernels"] == "ok"
+
+
+def test_a_failed_kernel_load_keeps_the_api_unready(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken() -> float:
+        raise RuntimeError("no writable numba cache")
+
+    monkeypatch.setattr(engine, "warm_up", broken)
+    with _app(tmp_path) as client:
+        deadline = time.monotonic() + 10
+        while (body := client.get("/readyz").json()).get("kernels") == "loading":
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        assert body["status"] == "unavailable" and body["kernels"] == "failed: RuntimeError: no writable numba cache"
+        assert client.get("/healthz").status_code == 200
