@@ -90,10 +90,6 @@ def _kernel_args(
     )
 
 
-def _evaluate_range(args: tuple[object, ...], start: int, stop: int, out: FloatArray) -> None:
-    plan_kernels.evaluate_range(*args, start, stop, out)
-
-
 def _trace_arrays(n_samples: int, n: int) -> tuple[FloatArray, ...]:
     m = min(6, n)
     return (
@@ -248,6 +244,17 @@ def _stack_params(method: str, params: ParamSets) -> dict[str, FloatArray]:
     return columns
 
 
+class EvaluationStoppedError(Exception):
+    """:func:`evaluate` was stopped (its ``stop`` event was set) before every plan was run."""
+
+
+#: Target work of one piece of a stoppable evaluation (s of one thread): a stop request is
+#: honoured after the pieces already running, so within about this long.
+STOP_LATENCY_S = 0.05
+#: Rough cost of a plan-step per joint (s), to size the pieces (measured: 0.9 to 1.2 µs).
+JOINT_STEP_COST_S = 1.2e-6
+
+
 def evaluate(
     model: RobotModel,
     task: CartesianTask,
@@ -257,23 +264,38 @@ def evaluate(
     feedback_gain: float = 0.0,
     threads: int | None = None,
     batch_size: int | None = None,
+    stop: threading.Event | None = None,
 ) -> FloatArray:
     """The kernel's metrics rows ``(batch, N_METRICS)`` of ``batch`` parameter sets of
     ``inverse`` (array parameters of shape ``(batch,)``), no traces kept. The sets are split
     into pieces of ``batch_size`` (default: about four per thread, for balance: diverging
-    plans end early) run on ``threads`` threads (default :func:`default_threads`)."""
+    plans end early) run on ``threads`` threads (default :func:`default_threads`).
+
+    With a ``stop`` event the pieces are small (about :data:`STOP_LATENCY_S` of work each) and
+    a piece that has not started when ``stop`` is set is skipped: :class:`EvaluationStoppedError`
+    is raised once the running ones end."""
     args = _kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, batch))
     out = np.empty((batch, plan_kernels.N_METRICS))
     workers = max(1, threads if threads is not None else default_threads())
     size = batch_size or max(1, math.ceil(batch / (4 * workers)))
+    if stop is not None and batch_size is None:
+        plan_cost = (task.n_steps + 1) * model.n_joints * JOINT_STEP_COST_S
+        size = max(1, min(size, int(STOP_LATENCY_S / plan_cost)))
     edges = list(range(0, batch, size)) + [batch]
+
+    def piece(start: int, stop_at: int) -> bool:
+        if stop is not None and stop.is_set():
+            return False
+        plan_kernels.evaluate_range(*args, start, stop_at, out)
+        return True
+
     if workers == 1 or len(edges) <= 2:
-        _evaluate_range(args, 0, batch, out)
-        return out
-    pool = _pool(workers)
-    futures = [pool.submit(_evaluate_range, args, a, b, out) for a, b in itertools.pairwise(edges)]
-    for f in futures:
-        f.result()
+        done = all([piece(a, b) for a, b in itertools.pairwise(edges)])
+    else:
+        pool = _pool(workers)
+        done = all([f.result() for f in [pool.submit(piece, a, b) for a, b in itertools.pairwise(edges)]])
+    if not done:
+        raise EvaluationStoppedError("stopped before every plan was run")
     return out
 
 
@@ -289,17 +311,18 @@ def plan_batch(
     aggregation: str = "max",
     attitude_term: str = "angle",
     threads: int | None = None,
+    stop: threading.Event | None = None,
 ) -> BatchResult:
     """Plan many parameter sets of ``method`` and return their metrics (no trajectories: the
     memory is proportional to the number of sets, not to the number of steps).
 
     ``params`` is either ``{name: (B,) values}`` or a list of ``{name: value}`` dicts.
-    ``batch_size`` and ``threads``: see :func:`evaluate`. Each set's result is independent of
-    the batch it runs in.
+    ``batch_size``, ``threads`` and ``stop``: see :func:`evaluate`. Each set's result is
+    independent of the batch it runs in.
     """
     objective = Objective(weights, aggregation, attitude_term)
     columns = _stack_params(method, params)
     total = next(iter(columns.values())).shape[0] if columns else max(1, len(params))
     inverse = make_inverse(method, **columns)
-    raw = evaluate(model, task, inverse, total, feedback_gain=feedback_gain, threads=threads, batch_size=batch_size)
+    raw = evaluate(model, task, inverse, total, feedback_gain=feedback_gain, threads=threads, batch_size=batch_size, stop=stop)
     return BatchResult(method=method, params=columns, metrics=batch_metrics(raw, task.joint_speed_limit, objective))

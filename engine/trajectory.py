@@ -28,6 +28,7 @@ Profile = Literal["trapezoidal", "quintic"]
 PROFILES: tuple[str, ...] = ("trapezoidal", "quintic")
 MAX_DURATION_S = 600.0
 MAX_STEPS = 20_000
+MIN_DT_S = 1e-4  # 0.1 ms: finer steps add rounding, not accuracy
 
 #: The paper's initial joint angles (deg) and target pose (SpaceDyn RPY, rad).
 PAPER_Q0_DEG = (175.0, -60.0, -60.0, 0.0, 210.0, 5.0)
@@ -88,8 +89,8 @@ class CartesianTask:
             object.__setattr__(self, name, value)
         if not 0.0 < self.duration <= MAX_DURATION_S:
             raise ParameterError("duration", f"must be in (0, {MAX_DURATION_S:g}] s")
-        if not 0.0 < self.dt <= 1.0:
-            raise ParameterError("dt", "must be in (0, 1] s")
+        if not MIN_DT_S <= self.dt <= 1.0:
+            raise ParameterError("dt", f"must be in [{MIN_DT_S:g}, 1] s")
         if not 0.0 <= self.ramp_time <= self.duration / 2.0:
             raise ParameterError("ramp_time", "must be in [0, duration / 2]")
         if self.profile not in PROFILES:

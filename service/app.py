@@ -9,12 +9,16 @@ import threading
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from pathlib import Path
 
+import anyio
 import httpx
 from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
 
 import engine
 from service import errors, security
+from service.admission import Admission
 from service.db import Database
 from service.migrate import seed_presets
 from service.routers import figures, health, plans, robots, tasks, tuning, web
@@ -40,6 +44,8 @@ TAGS = [
 
 
 log = logging.getLogger("spacearm.api")
+logging.getLogger("httpx").setLevel(logging.WARNING)  # the in-process requests are not news
+STATIC = Path(__file__).resolve().parent / "static"
 
 #: Requests that reach every router without changing anything (see :meth:`Kernels._visit_routers`).
 WARM_UP_PATHS = (
@@ -109,15 +115,33 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
+        # The thread pool and the database pool are sized together (a blocking handler never
+        # waits for a connection); plans and figure renders are admitted a few at a time.
+        anyio.to_thread.current_default_thread_limiter().total_tokens = settings.api_threads
+        db = Database(
+            settings.database_url,
+            settings.sqlite_busy_timeout_ms,
+            pool_size=settings.pool_size(),
+            max_overflow=0,
+            pool_timeout_s=settings.db_pool_timeout_s,
+        )
         app.state.db = db
+        # readiness has a connection and a thread of its own: it answers however busy the API is
+        app.state.health_db = Database(
+            settings.database_url, settings.sqlite_busy_timeout_ms, pool_size=1, max_overflow=1, pool_timeout_s=1.0
+        )
+        app.state.health_limiter = anyio.CapacityLimiter(2)
         app.state.settings = settings
+        slots = settings.plan_slots()
+        app.state.plan_admission = Admission("plans", slots, settings.plan_queue, settings.plan_queue_timeout_s)
+        app.state.figure_admission = Admission("figure renders", slots, 4 * slots, settings.plan_queue_timeout_s)
         app.state.kernels = Kernels(app, db, settings)
         app.state.kernels.start()
         with contextlib.suppress(Exception):  # not migrated yet: /readyz says so
             seed_presets(db)
         yield
         db.dispose()
+        app.state.health_db.dispose()
 
     app = FastAPI(title="spacearm", version="0.1.0", description=DESCRIPTION, openapi_tags=TAGS, lifespan=lifespan)
     errors.install(app)
@@ -125,4 +149,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.problem_openapi(app)
     for module in (health, robots, tasks, plans, tuning, figures, web):
         app.include_router(module.router)
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
     return app

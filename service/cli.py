@@ -25,9 +25,13 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.command == "migrate":
         from service.db import Database
-        from service.migrate import seed_presets, upgrade
+        from service.migrate import MigrationError, seed_presets, upgrade
 
-        upgrade(settings.database_url, args.revision)
+        try:
+            upgrade(settings.database_url, args.revision)
+        except MigrationError as exc:
+            print(f"spacearm migrate: {exc}", file=sys.stderr)
+            return 1
         db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
         seed_presets(db)
         db.dispose()
@@ -37,13 +41,16 @@ def main(argv: list[str] | None = None) -> int:
         import uvicorn
 
         from service.app import create_app
+        from service.logs import uvicorn_log_config
 
         host = args.host or settings.host
         if not settings.keys() and host not in ("127.0.0.1", "localhost", "::1"):
             logging.getLogger("spacearm.api").warning(
                 "authentication is OFF and the API listens on %s: set SPACEARM_API_KEYS before exposing it", host
             )
-        uvicorn.run(create_app(settings), host=host, port=args.port or settings.port, log_level="info")
+        uvicorn.run(
+            create_app(settings), host=host, port=args.port or settings.port, log_level="info", log_config=uvicorn_log_config()
+        )
         return 0
     if args.command == "worker":
         from service.worker import run_worker

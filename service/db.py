@@ -1,21 +1,38 @@
-"""Engine and sessions. SQLite runs in WAL mode with a busy timeout (set on every connection);
-any other database (PostgreSQL: ``postgresql+psycopg://...``) gets a pooled engine that checks
-connections before use, and transactions that PostgreSQL aborts because of a deadlock or a
-serialization failure are retried like SQLite's "database is locked"."""
+"""Engine and sessions, and what a database fault means for a request.
+
+SQLite runs in WAL mode with a busy timeout (set on every connection). At run time the file is
+opened read-write *without* being created (``mode=rw``): a database file deleted under a running
+service is an error, not a new empty database; the file the service holds is compared with the
+file at its path before every session, so writes never go to a deleted or replaced file. Only
+``spacearm migrate`` creates the file, and its engine runs DDL inside transactions (pysqlite
+would otherwise commit each ``CREATE TABLE`` on its own), so a migration is all or nothing.
+
+Any other database (PostgreSQL: ``postgresql+psycopg://...``) gets a pooled engine that checks
+connections before use. Transactions that SQLite refuses for a lock, or that PostgreSQL aborts
+for a deadlock or a serialization failure, are retried. Faults that a retry cannot cure right
+away (read-only or full storage, a missing file, a lost server, an exhausted connection pool)
+are :class:`DatabaseUnavailableError`-like: the API answers 503 with ``Retry-After`` and drops
+its pooled connections, so it recovers by itself when the fault ends.
+"""
 
 from __future__ import annotations
 
 import functools
+import logging
+import os
 import random
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar
+from urllib.parse import quote
 
 from sqlalchemy import Engine, create_engine, event
-from sqlalchemy.engine import make_url
+from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import DBAPIError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service import jsonio
@@ -25,11 +42,26 @@ T = TypeVar("T")
 
 LOCK_RETRIES = 8
 CONNECT_TIMEOUT_S = 10
+log = logging.getLogger("spacearm.db")
 
 
 # PostgreSQL SQLSTATEs of transactions worth running again: serialization_failure,
 # deadlock_detected, lock_not_available
 RETRYABLE_SQLSTATES = frozenset({"40001", "40P01", "55P03"})
+# PostgreSQL SQLSTATE classes and codes of an unavailable database: connection exceptions (08),
+# read-only transaction, insufficient resources (53: disk full, out of memory, too many
+# connections), operator intervention (57: shutdown, cannot connect now)
+UNAVAILABLE_SQLSTATES = ("08", "25006", "53", "57")
+# SQLite's words for the same (read-only file, full disk, missing or unreadable file, I/O error)
+UNAVAILABLE_SQLITE = ("readonly", "read-only", "disk is full", "unable to open", "disk i/o error", "not a database")
+
+
+class DatabaseUnavailableError(Exception):
+    """The database cannot serve this request now (see :func:`unavailable_reason`)."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
 
 
 def is_locked(exc: BaseException) -> bool:
@@ -40,6 +72,32 @@ def is_locked(exc: BaseException) -> bool:
     if getattr(exc.orig, "sqlstate", None) in RETRYABLE_SQLSTATES:
         return True
     return isinstance(exc, OperationalError) and any(w in str(exc.orig).lower() for w in ("locked", "busy"))
+
+
+def unavailable_reason(exc: BaseException) -> str | None:
+    """A short reason when ``exc`` means the database cannot serve requests for now (read-only,
+    full, missing, unreachable, out of connections), else None. Never the driver's text."""
+    if isinstance(exc, DatabaseUnavailableError):
+        return exc.reason
+    if isinstance(exc, PoolTimeoutError):
+        return "every database connection is in use"
+    if not isinstance(exc, DBAPIError):
+        return None
+    state = getattr(exc.orig, "sqlstate", None) or ""
+    if state and any(state.startswith(prefix) for prefix in UNAVAILABLE_SQLSTATES):
+        return {"25006": "the database is read-only", "53100": "the database's disk is full"}.get(
+            state, "the database server is unavailable"
+        )
+    message = str(exc.orig).lower()
+    if "readonly" in message or "read-only" in message:
+        return "the database is read-only"
+    if "disk is full" in message:
+        return "the database's disk is full"
+    if any(w in message for w in UNAVAILABLE_SQLITE):
+        return "the database file cannot be opened"
+    if exc.connection_invalidated:
+        return "the database connection was lost"
+    return None
 
 
 def retry_locked(fn: Callable[P, T]) -> Callable[P, T]:
@@ -62,32 +120,72 @@ def retry_locked(fn: Callable[P, T]) -> Callable[P, T]:
     return wrapper
 
 
-def ensure_sqlite_dir(url: str) -> None:
+def sqlite_path(url: str | URL) -> Path | None:
+    """The file of a SQLite URL (None for other databases and in-memory SQLite)."""
     parsed = make_url(url)
-    if parsed.get_backend_name() == "sqlite" and parsed.database and parsed.database != ":memory:":
-        Path(parsed.database).expanduser().parent.mkdir(parents=True, exist_ok=True)
+    if parsed.get_backend_name() != "sqlite" or not parsed.database or parsed.database == ":memory:":
+        return None
+    database = parsed.database
+    if database.startswith("file:"):
+        database = database[5:]
+    return Path(database).expanduser()
 
 
-def make_engine(url: str, busy_timeout_ms: int = 10_000) -> Engine:
-    """An engine for ``url``. ``busy_timeout_ms`` only applies to SQLite."""
+def ensure_sqlite_dir(url: str) -> None:
+    path = sqlite_path(url)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+
+
+def _open_existing(url: URL, path: Path) -> URL:
+    """The same SQLite database opened as a URI with ``mode=rw``: never created by connecting."""
+    return url.set(database=f"file:{quote(str(path.resolve()))}?mode=rw", query={**url.query, "uri": "true"})
+
+
+def make_engine(
+    url: str,
+    busy_timeout_ms: int = 10_000,
+    *,
+    create: bool = False,
+    pool_size: int = 5,
+    max_overflow: int = 10,
+    pool_timeout_s: float = 30.0,
+) -> Engine:
+    """An engine for ``url``. SQLite: ``create`` lets connecting create the file and makes DDL
+    transactional (for migrations); ``busy_timeout_ms`` only applies to SQLite. The pool's size,
+    overflow and timeout apply to every database."""
     ensure_sqlite_dir(url)
     parsed = make_url(url)
+    path = sqlite_path(parsed)
     is_sqlite = parsed.get_backend_name() == "sqlite"
-    # JSON columns through orjson: trajectories are stored straight from the planner's numpy
-    # arrays (no Python-list copy), NaN and infinities as null.
-    kwargs: dict[str, Any] = {"json_serializer": jsonio.dumps_text, "json_deserializer": jsonio.loads}
+    # JSON columns through orjson (see service.jsonio), NaN and infinities as null.
+    kwargs: dict[str, Any] = {
+        "json_serializer": jsonio.dumps_text,
+        "json_deserializer": jsonio.loads,
+        "pool_size": pool_size,
+        "max_overflow": max_overflow,
+        "pool_timeout": pool_timeout_s,
+    }
     if is_sqlite:
         kwargs["connect_args"] = {"check_same_thread": False, "timeout": busy_timeout_ms / 1000.0}
+        if path is not None and not create:
+            parsed = _open_existing(parsed, path)
     else:
         # a server restart or a dropped connection must not fail the next request or heartbeat
         kwargs["pool_pre_ping"] = True
         if parsed.get_backend_name() == "postgresql" and "connect_timeout" not in parsed.query:
             kwargs["connect_args"] = {"connect_timeout": CONNECT_TIMEOUT_S}  # /readyz answers instead of hanging
-    engine = create_engine(url, **kwargs)
+    if path is None and is_sqlite:  # in-memory: no pool sizes
+        for key in ("pool_size", "max_overflow", "pool_timeout"):
+            kwargs.pop(key)
+    engine = create_engine(parsed, **kwargs)
     if is_sqlite:
 
         @event.listens_for(engine, "connect")
         def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
+            if create:
+                # pysqlite opens transactions only before DML; let SQLAlchemy begin them (below)
+                dbapi_connection.isolation_level = None
             cursor = dbapi_connection.cursor()
             cursor.execute("PRAGMA journal_mode=WAL")
             cursor.execute(f"PRAGMA busy_timeout={int(busy_timeout_ms)}")
@@ -95,19 +193,69 @@ def make_engine(url: str, busy_timeout_ms: int = 10_000) -> Engine:
             cursor.execute("PRAGMA synchronous=NORMAL")
             cursor.close()
 
+        if create:
+
+            @event.listens_for(engine, "begin")
+            def _begin(conn: Any) -> None:
+                conn.exec_driver_sql("BEGIN IMMEDIATE")  # DDL and the version stamp in one transaction
+
     return engine
 
 
 class Database:
-    """An engine and its session factory."""
+    """An engine and its session factory. For SQLite it remembers which file it opened (device
+    and inode) and checks, before every session, that the path still names that file."""
 
-    def __init__(self, url: str, busy_timeout_ms: int = 10_000) -> None:
+    def __init__(
+        self,
+        url: str,
+        busy_timeout_ms: int = 10_000,
+        *,
+        pool_size: int = 5,
+        max_overflow: int = 10,
+        pool_timeout_s: float = 30.0,
+    ) -> None:
         self.url = url
-        self.engine = make_engine(url, busy_timeout_ms)
+        self.path = sqlite_path(url)
+        self.engine = make_engine(
+            url, busy_timeout_ms, pool_size=pool_size, max_overflow=max_overflow, pool_timeout_s=pool_timeout_s
+        )
         self.sessionmaker = sessionmaker(self.engine, expire_on_commit=False)
+        self._identity: tuple[int, int] | None = None
+        self._lock = threading.Lock()
+
+    def check_file(self) -> None:
+        """Raise :class:`DatabaseUnavailableError` if the SQLite file is missing; if the path now
+        names another file (restored from a backup, migrated anew), drop the pooled connections
+        so the next ones open it."""
+        if self.path is None:
+            return
+        try:
+            st = os.stat(self.path)
+        except OSError:
+            raise DatabaseUnavailableError(
+                f"the database file {self.path} is missing: restore it, or create it with `spacearm migrate`"
+            ) from None
+        identity = (st.st_dev, st.st_ino)
+        with self._lock:
+            if self._identity is None:
+                self._identity = identity
+            elif identity != self._identity:
+                log.warning("the database file %s was replaced: reconnecting", self.path)
+                self._identity = identity
+                self.engine.dispose()
+
+    def recover(self, exc: BaseException) -> str | None:
+        """If ``exc`` means the database is unavailable, drop the pooled connections (a
+        connection opened while the file was read-only stays read-only) and return the reason."""
+        reason = unavailable_reason(exc)
+        if reason is not None and not isinstance(exc, PoolTimeoutError):
+            self.engine.dispose()
+        return reason
 
     @contextmanager
     def session(self) -> Iterator[Session]:
+        self.check_file()
         with self.sessionmaker() as session:
             try:
                 yield session

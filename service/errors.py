@@ -9,10 +9,11 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
-from sqlalchemy.exc import DataError, OperationalError
+from sqlalchemy.exc import DataError, DBAPIError
+from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.db import is_locked
+from service.db import DatabaseUnavailableError, is_locked, unavailable_reason
 
 PROBLEM_JSON = "application/problem+json"
 PROBLEM_BASE = "https://spacearm.example/problems/"
@@ -29,6 +30,7 @@ TITLES = {
     429: "Too Many Requests",
     500: "Internal Server Error",
     503: "Service Unavailable",
+    507: "Insufficient Storage",
 }
 TYPES = {
     401: "unauthorized",
@@ -39,7 +41,12 @@ TYPES = {
     429: "too-many-requests",
     500: "internal-error",
     503: "unavailable",
+    507: "insufficient-storage",
 }
+
+#: Retry-After (s) of a 503 for a locked database, and for one that is unavailable for a while
+RETRY_LOCKED_S = 1
+RETRY_UNAVAILABLE_S = 5
 
 
 class ApiError(Exception):
@@ -154,22 +161,37 @@ def install(app: FastAPI) -> None:
             return problem(413, str(exc.detail), instance=request.url.path, headers=exc.headers, errors=errors)
         return problem(exc.status_code, str(exc.detail), instance=request.url.path, headers=exc.headers)
 
-    @app.exception_handler(OperationalError)
-    async def _database_busy(request: Request, exc: OperationalError) -> JSONResponse:
-        # last resort: writes retry on a locked SQLite database (or a PostgreSQL deadlock /
-        # serialization failure), so this is rare; never leak the driver message
-        if is_locked(exc):
-            return problem(503, "the database is busy; retry", instance=request.url.path, headers={"Retry-After": "1"})
-        return problem(500, "unexpected error: OperationalError", instance=request.url.path)
+    def unavailable(request: Request, reason: str, retry_after_s: int) -> JSONResponse:
+        return problem(
+            503,
+            f"{reason}; retry after {retry_after_s} s",
+            type_=PROBLEM_BASE + "database-unavailable",
+            instance=request.url.path,
+            headers={"Retry-After": str(retry_after_s)},
+        )
 
-    @app.exception_handler(DataError)
-    async def _unstorable(request: Request, exc: DataError) -> JSONResponse:
-        # PostgreSQL refuses some values SQLite stores, above all text with NUL characters
-        if "NUL" in str(exc.orig) or "\\u0000" in str(exc.orig):
+    @app.exception_handler(DBAPIError)
+    async def _database_error(request: Request, exc: DBAPIError) -> JSONResponse:
+        # never leak the driver message; a locked database is retried before it gets here
+        if is_locked(exc):
+            return unavailable(request, "the database is busy", RETRY_LOCKED_S)
+        reason = request.app.state.db.recover(exc)  # drops pooled connections: recovery without a restart
+        if reason is not None:
+            return unavailable(request, reason, RETRY_UNAVAILABLE_S)
+        if isinstance(exc, DataError) and ("NUL" in str(exc.orig) or "\\u0000" in str(exc.orig)):
+            # PostgreSQL refuses text with NUL characters (the schemas refuse them before)
             where = "path" if "\x00" in request.url.path else "query" if "\x00" in str(request.query_params) else "body"
             msg = "text must not contain NUL characters (\\u0000)"
             return problem(422, f"{where}: {msg}", instance=request.url.path, errors=[field_error([where], msg)])
-        return problem(500, "unexpected error: DataError", instance=request.url.path)
+        return problem(500, f"unexpected error: {type(exc).__name__}", instance=request.url.path)
+
+    @app.exception_handler(DatabaseUnavailableError)
+    async def _database_missing(request: Request, exc: DatabaseUnavailableError) -> JSONResponse:
+        return unavailable(request, exc.reason, RETRY_UNAVAILABLE_S)
+
+    @app.exception_handler(PoolTimeoutError)
+    async def _pool_exhausted(request: Request, exc: PoolTimeoutError) -> JSONResponse:
+        return unavailable(request, unavailable_reason(exc) or "the database is busy", RETRY_LOCKED_S)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

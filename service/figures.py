@@ -61,7 +61,7 @@ matplotlib.rcParams.update(
 
 
 class PlanData:
-    """Numpy views of a stored plan (``trajectory`` with nulls as NaN)."""
+    """Numpy views of a stored plan (``trajectory`` arrays, or lists with nulls as NaN)."""
 
     def __init__(self, plan: dict[str, Any]) -> None:
         self.id = str(plan.get("id", ""))
@@ -126,7 +126,9 @@ def _fmt(v: Any) -> str:
 
 
 def _arr(values: Any, ndim: int = 1) -> np.ndarray:
-    """A float array with ``None`` as NaN."""
+    """A float array with ``None`` as NaN (stored trajectories are arrays already)."""
+    if isinstance(values, np.ndarray):
+        return values.astype(float, copy=False).reshape((-1,) if ndim == 1 else (values.shape[0], -1))
     if ndim == 1:
         return np.array([np.nan if v is None else v for v in values], dtype=float)
     rows = [[np.nan if v is None else v for v in row] for row in values]

@@ -1,22 +1,35 @@
-"""Alembic helpers: upgrade/downgrade, the current and head revisions, and the presets."""
+"""Alembic helpers: upgrade (with a check of half-done databases), downgrade, the current and
+head revisions, and the presets.
+
+Migrations are atomic (see ``migrations/env.py``). A database left half-migrated by an earlier,
+non-transactional version of ``spacearm migrate`` (tables but no ``alembic_version``) is
+repaired when its tables are spacearm's and empty (they are dropped and created again);
+otherwise :func:`upgrade` refuses with :class:`MigrationError`, saying what to do.
+"""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine, select
+from sqlalchemy import Engine, func, inspect, select, table, text
 from sqlalchemy.exc import IntegrityError
 
 import migrations
-from engine import table1_robot
-from service.db import Database, ensure_sqlite_dir
-from service.models import Robot
+from service.db import Database, ensure_sqlite_dir, make_engine
+from service.models import Base, Robot
 
 PRESET_ROBOT_ID = "table1"
+log = logging.getLogger("spacearm.migrate")
+
+
+class MigrationError(Exception):
+    """The database is in a state ``spacearm migrate`` will not touch; the message says why and
+    what to do."""
 
 
 def alembic_config(url: str) -> Config:
@@ -26,8 +39,43 @@ def alembic_config(url: str) -> Config:
     return config
 
 
+def _check_half_done(url: str) -> None:
+    """Repair or refuse a database with spacearm tables but no migration record."""
+    engine = make_engine(url, create=True)
+    try:
+        with engine.begin() as conn:
+            names = set(inspect(conn).get_table_names())
+            if not names or ("alembic_version" in names and conn.execute(text("SELECT count(*) FROM alembic_version")).scalar()):
+                return
+            ours = {t.name for t in Base.metadata.sorted_tables}
+            foreign = names - ours - {"alembic_version"}
+            if foreign:
+                raise MigrationError(
+                    f"the database has tables that are not spacearm's ({', '.join(sorted(foreign))}) and no migration "
+                    "record: point SPACEARM_DATABASE_URL at an empty or spacearm database"
+                )
+            present = sorted(names & ours)
+            rows = {name: conn.execute(select(func.count()).select_from(table(name))).scalar() for name in present}
+            if any(rows.values()):
+                held = ", ".join(f"{name} ({n} rows)" for name, n in rows.items() if n)
+                raise MigrationError(
+                    f"the database has spacearm tables holding data ({held}) but no migration record, so its "
+                    "schema revision is unknown: restore it from a backup, or, if you know the revision its tables "
+                    "match, record it with `alembic -c alembic.ini stamp <revision>` and run `spacearm migrate` again"
+                )
+            log.warning("repairing a half-migrated database: dropping its empty tables %s", ", ".join(present))
+            for name in reversed([t.name for t in Base.metadata.sorted_tables]):
+                if name in names:
+                    conn.execute(text(f'DROP TABLE "{name}"'))
+            if "alembic_version" in names:
+                conn.execute(text("DROP TABLE alembic_version"))
+    finally:
+        engine.dispose()
+
+
 def upgrade(url: str, revision: str = "head") -> None:
     ensure_sqlite_dir(url)
+    _check_half_done(url)
     command.upgrade(alembic_config(url), revision)
 
 
@@ -46,6 +94,8 @@ def current_revision(engine: Engine) -> str | None:
 
 def seed_presets(db: Database) -> None:
     """Insert the Table-1 robot preset if it is missing (idempotent)."""
+    from engine import table1_robot  # the engine (numba) is only needed once the schema exists
+
     try:
         with db.session() as session:
             if session.scalar(select(Robot.id).where(Robot.id == PRESET_ROBOT_ID)) is None:

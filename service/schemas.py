@@ -6,16 +6,39 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal, get_args
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, check_weights
 from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
-from engine.trajectory import MAX_DURATION_S, PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY
+from engine.trajectory import MAX_DURATION_S, MIN_DT_S, PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY
 from engine.tuning import MAX_BITS_PER_GENE, MAX_GENERATIONS, MAX_POPULATION
 
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Quaternion = Annotated[list[float], Field(min_length=4, max_length=4, description="unit quaternion [w, x, y, z]")]
-Matrix3 = Annotated[list[Vec3], Field(min_length=3, max_length=3)]
+# Every number in a request is bounded (an overflow inside the engine is ruled out by the schema).
+MAX_LENGTH_M = 1e3
+MAX_ANGLE_DEG = 36_000.0  # a hundred turns
+MAX_INERTIA = 1e12  # kg m^2
+MAX_MASS_KG = 1e9
+MAX_MAGNITUDE = 1e6  # method parameters, gains, weights, quaternion components
+Length = Annotated[float, Field(ge=-MAX_LENGTH_M, le=MAX_LENGTH_M)]
+AngleDeg = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
+Magnitude = Annotated[float, Field(ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
+Mass = Annotated[float, Field(gt=0, le=MAX_MASS_KG, description="kg")]
+Vec3 = Annotated[list[Length], Field(min_length=3, max_length=3)]
+Quaternion = Annotated[
+    list[Magnitude],
+    Field(min_length=4, max_length=4, description="unit quaternion [w, x, y, z] (normalised; must not be zero)"),
+]
+InertiaRow = Annotated[list[Annotated[float, Field(ge=-MAX_INERTIA, le=MAX_INERTIA)]], Field(min_length=3, max_length=3)]
+Inertia = Annotated[
+    list[InertiaRow],
+    Field(
+        min_length=3,
+        max_length=3,
+        description="kg m^2; symmetric positive definite, each principal moment at most the sum of the others",
+    ),
+]
+RotationRow = Annotated[list[Annotated[float, Field(ge=-1.000001, le=1.000001)]], Field(min_length=3, max_length=3)]
+Rotation = Annotated[list[RotationRow], Field(min_length=3, max_length=3, description="a rotation matrix (orthonormal, det +1)")]
 
 # The objective's options, as the engine defines them (checked below so the two cannot drift).
 AggregationName = Literal["max", "rms", "final"]
@@ -35,7 +58,7 @@ def _weights(value: list[float]) -> list[float]:
 
 
 Weights = Annotated[
-    list[float],
+    list[Annotated[float, Field(ge=0, le=MAX_MAGNITUDE)]],
     Field(min_length=2, max_length=2, description="(w1, w2) of B: finite, >= 0, not both zero"),
     AfterValidator(_weights),
 ]
@@ -54,39 +77,59 @@ PAPER_TASK_EXAMPLE: dict[str, Any] = {
 }
 
 
-class Input(BaseModel):
-    """A request body: every number must be finite (NaN and infinities, which JSON parsers accept
-    as ``NaN``/``Infinity`` literals or overflow to, are rejected with the field path)."""
+def _no_nul(value: Any) -> Any:
+    """Text must not contain NUL characters (PostgreSQL cannot store them; no field needs them)."""
+    if isinstance(value, str):
+        if "\x00" in value:
+            raise ValueError("must not contain NUL characters (\\u0000)")
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            _no_nul(key)
+            _no_nul(item)
+    elif isinstance(value, list | tuple):
+        for item in value:
+            _no_nul(item)
+    return value
 
-    model_config = ConfigDict(allow_inf_nan=False)
+
+class Input(BaseModel):
+    """A request body, strictly typed: every number must be finite (NaN and infinities, which
+    JSON parsers accept as ``NaN``/``Infinity`` literals or overflow to, are rejected with the
+    field path), no text for a number and no number for a boolean, no unknown fields, no NUL
+    characters in text."""
+
+    model_config = ConfigDict(allow_inf_nan=False, strict=True, extra="forbid")
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _text_without_nul(cls, value: Any) -> Any:
+        return _no_nul(value)
 
 
 # --- robots -------------------------------------------------------------------------------
 
 
 class BaseParams(Input):
-    mass: float = Field(description="kg")
-    inertia: Matrix3 = Field(description="kg m^2 about the base CoM, base frame")
+    mass: Mass
+    inertia: Inertia = Field(description="kg m^2 about the base CoM, base frame")
     b: Vec3 = Field(description="m, base CoM to joint 1, base frame")
 
 
 class LinkParams(Input):
-    name: str | None = None
-    mass: float = Field(description="kg")
-    joint_axis: Vec3 = Field(description="unit joint axis in the link frame")
+    name: str | None = Field(default=None, max_length=200)
+    mass: Mass
+    joint_axis: Vec3 = Field(description="joint axis in the link frame (normalised; must not be zero)")
     a: Vec3 = Field(description="m, joint i to link i CoM, link frame")
     b: Vec3 = Field(description="m, link i CoM to joint i+1 (or the end effector), link frame")
-    inertia: Matrix3 = Field(description="kg m^2 about the link CoM, link frame")
+    inertia: Inertia = Field(description="kg m^2 about the link CoM, link frame")
 
 
 class EndEffectorParams(Input):
-    C_e: Matrix3 = Field(description="end-effector frame in the last link's frame (rotation matrix)")
+    C_e: Rotation = Field(description="end-effector frame in the last link's frame (rotation matrix)")
 
 
 class RobotParams(Input):
     """A robot parameter set in the schema of ``robot-table1.yaml`` (SI units)."""
-
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
 
     name: str = Field(min_length=1, max_length=200)
     base: BaseParams
@@ -109,7 +152,9 @@ class RobotList(BaseModel):
 
 
 class JacobianRequest(Input):
-    joint_angles_deg: list[float] = Field(min_length=1, max_length=12, examples=[list(PAPER_Q0_DEG)])
+    joint_angles_deg: list[AngleDeg] = Field(
+        min_length=1, max_length=12, examples=[list(PAPER_Q0_DEG)], description="deg, one per joint of the robot"
+    )
     base_position_m: Vec3 | None = Field(default=None, description="base CoM in world, m (default origin)")
     base_attitude_quaternion: Quaternion | None = Field(default=None, description="base attitude [w, x, y, z] (default identity)")
 
@@ -133,14 +178,16 @@ class TaskIn(Input):
 
     model_config = ConfigDict(json_schema_extra={"examples": [PAPER_TASK_EXAMPLE]}, allow_inf_nan=False)
 
-    q0_deg: list[float] = Field(min_length=1, max_length=12, description="initial joint angles, deg")
+    q0_deg: list[AngleDeg] = Field(
+        min_length=1, max_length=12, description="initial joint angles, deg; one per joint of the robot"
+    )
     target_position_m: Vec3 = Field(description="target end-effector position, m")
     target_attitude_quaternion: Quaternion = Field(description="target end-effector attitude [w, x, y, z]")
     duration_s: float = Field(default=15.0, gt=0, le=MAX_DURATION_S, description="s")
     ramp_time_s: float = Field(default=1.5, ge=0, le=300, description="s, trapezoidal profile only; at most duration_s / 2")
-    dt_s: float = Field(default=0.25, gt=0, le=1, description="planner step, s")
+    dt_s: float = Field(default=0.25, ge=MIN_DT_S, le=1, description="planner step, s; duration_s / dt_s at most 20,000 steps")
     profile: Literal["trapezoidal", "quintic"] = "trapezoidal"
-    joint_speed_limit_deg_s: float = Field(default=6.0, gt=0, description="symmetric joint speed limit, deg/s")
+    joint_speed_limit_deg_s: float = Field(default=6.0, gt=0, le=MAX_MAGNITUDE, description="symmetric joint speed limit, deg/s")
 
 
 class TaskPreset(BaseModel):
@@ -159,11 +206,34 @@ class TaskPresetList(BaseModel):
 
 
 class MethodIn(Input):
-    name: str = Field(default="adaptive", description="inverse: inverse, dls, adaptive, wdls, sdls, svf")
-    params: dict[str, float] = Field(default_factory=dict, description="method parameters; missing ones take defaults")
+    name: str = Field(default="adaptive", max_length=40, description="inverse: inverse, dls, adaptive, wdls, sdls, svf")
+    params: dict[Annotated[str, Field(max_length=40)], Magnitude] = Field(
+        default_factory=dict, max_length=4, description="method parameters; missing ones take defaults"
+    )
 
 
-class PlanRequest(Input):
+class OneRobot(Input):
+    """A request naming its robot: ``robot_id`` (a stored robot) or ``robot`` (inline), exactly
+    one of the two (``oneOf`` in the schema)."""
+
+    model_config = ConfigDict(json_schema_extra={"oneOf": [{"required": ["robot_id"]}, {"required": ["robot"]}]})
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> Any:
+        if (getattr(self, "robot_id", None) is None) == (getattr(self, "robot", None) is None):
+            raise ValueError("give exactly one of robot_id (a stored robot, e.g. 'table1') and robot (inline parameters)")
+        return self
+
+    def stored(self) -> dict[str, Any]:
+        """The request as stored (JSON; the robot field not given is left out, as in the request)."""
+        data = self.model_dump(mode="json")
+        for name in ("robot_id", "robot"):
+            if data.get(name) is None:
+                data.pop(name, None)
+        return data
+
+
+class PlanRequest(OneRobot):
     model_config = ConfigDict(
         allow_inf_nan=False,
         json_schema_extra={
@@ -181,11 +251,16 @@ class PlanRequest(Input):
         },
     )
 
-    robot_id: str | None = Field(default=None, description="a stored robot; or give `robot` inline")
-    robot: RobotParams | None = Field(default=None, description="inline robot parameters (replace robot_id)")
+    # Optional but not nullable: left out when not used (a null is refused like any wrong type).
+    robot_id: str = Field(  # type: ignore[assignment]
+        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
+    )
+    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
     task: TaskIn
     method: MethodIn = Field(default_factory=MethodIn)
-    feedback_gain: float = Field(default=0.0, ge=0, description="1/s, pose-error feedback added to the path twist")
+    feedback_gain: float = Field(
+        default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback added to the path twist"
+    )
     aggregation: AggregationName = "max"
     weights: Weights = [0.5, 0.5]
     attitude_term: AttitudeTerm = "angle"
@@ -285,7 +360,7 @@ class GASettings(Input):
     mutation_probability: float = Field(default=0.02, ge=0, le=1, description="per-bit flip probability")
     bits_per_gene: int = Field(default=16, ge=2, le=MAX_BITS_PER_GENE)
     elitism: int = Field(default=1, ge=0, description="best individuals kept unchanged; < population")
-    seed: int | None = Field(default=0, ge=0, description="null for a random seed")
+    seed: int | None = Field(default=0, ge=0, le=2**63 - 1, description="null for a random seed")
 
     @field_validator("elitism")
     @classmethod
@@ -303,7 +378,7 @@ class ObjectiveSettings(Input):
     task_aggregation: Literal["mean", "max"] = "mean"
 
 
-class TuningJobRequest(Input):
+class TuningJobRequest(OneRobot):
     model_config = ConfigDict(
         allow_inf_nan=False,
         json_schema_extra={
@@ -329,16 +404,19 @@ class TuningJobRequest(Input):
         },
     )
 
-    robot_id: str | None = Field(default=None, description="a stored robot; or give `robot` inline")
-    robot: RobotParams | None = None
+    # Optional but not nullable: left out when not used (a null is refused like any wrong type).
+    robot_id: str = Field(  # type: ignore[assignment]
+        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
+    )
+    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
     tasks: list[TaskIn] = Field(min_length=1, max_length=20)
-    method: str = Field(default="adaptive", description="the inverse to tune (a method with parameters)")
-    bounds: dict[str, Annotated[list[float], Field(min_length=2, max_length=2)]] | None = Field(
-        None, description="search interval [lo, hi] per parameter; missing parameters take default bounds"
+    method: str = Field(default="adaptive", max_length=40, description="the inverse to tune (a method with parameters)")
+    bounds: dict[Annotated[str, Field(max_length=40)], Annotated[list[Magnitude], Field(min_length=2, max_length=2)]] | None = (
+        Field(None, max_length=4, description="search interval [lo, hi] per parameter; missing parameters take default bounds")
     )
     ga: GASettings = Field(default_factory=GASettings)
     objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings)
-    feedback_gain: float = Field(default=0.0, ge=0)
+    feedback_gain: float = Field(default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback")
     compare_with_dls: bool = Field(default=True, description="also tune constant-damping DLS with the same GA settings")
 
 

@@ -6,22 +6,29 @@ future):
   is no ``Content-Length`` (chunked uploads).
 - ``BearerAuthMiddleware``: with ``SPACEARM_API_KEYS`` set, every request under ``/v1`` needs
   ``Authorization: Bearer <key>`` (401 with ``WWW-Authenticate: Bearer`` otherwise); the web
-  pages need the sign-in cookie set by ``POST /login`` (GETs under ``/v1`` accept it too). Keys are
-  compared with :func:`hmac.compare_digest` against every configured key and never logged.
-  ``/healthz``, ``/readyz``, ``/openapi.json``, ``/docs`` and ``/login`` stay open.
+  pages need a sign-in session (``POST /login``, :mod:`service.sessions`; GETs under ``/v1``
+  accept it too). Keys are compared with :func:`hmac.compare_digest` against every configured
+  key and never logged. ``/healthz``, ``/readyz``, ``/openapi.json``, ``/docs``, ``/static`` and
+  ``/login`` stay open.
+- ``MethodsMiddleware`` (:mod:`service.http`): HEAD and OPTIONS everywhere, complete ``Allow``.
+- ``SecurityHeadersMiddleware``: nosniff everywhere; CSP, no framing and no referrer on pages.
 """
 
 from __future__ import annotations
 
 import hmac
 import logging
+import secrets
 from urllib.parse import quote
 
+import anyio
 from fastapi import FastAPI
 from starlette.responses import RedirectResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.errors import BodyTooLargeError, field_error, problem
+from service.http import MethodsMiddleware
+from service.sessions import SESSION_COOKIE, find_session
 from service.settings import Settings
 
 log = logging.getLogger("spacearm.api")
@@ -65,9 +72,6 @@ class BodyLimitMiddleware:
             await response(scope, receive, send)
 
 
-#: Cookie that carries an API key for the web pages (set by ``POST /login``: HttpOnly,
-#: SameSite=Strict, so other sites cannot make a browser send it).
-KEY_COOKIE = "spacearm_key"
 PAGE_PREFIXES = ("/plans/", "/jobs/", "/web/")
 
 
@@ -80,23 +84,29 @@ def _page(path: str) -> bool:
     return path == "/" or path.startswith(PAGE_PREFIXES)
 
 
-def _cookie(scope: Scope) -> bytes:
-    for name, value in scope.get("headers", []):
-        if name == b"cookie":
+def cookie_value(scope: Scope, name: str) -> str:
+    for header, value in scope.get("headers", []):
+        if header == b"cookie":
             for part in value.split(b";"):
                 key, _, token = part.strip().partition(b"=")
-                if key == KEY_COOKIE.encode():
-                    return token.strip()
-    return b""
+                if key == name.encode():
+                    return token.strip().decode("latin-1")
+    return ""
 
 
 class BearerAuthMiddleware:
-    def __init__(self, app: ASGIApp, keys: list[str]) -> None:
+    """Bearer keys for ``/v1``; sign-in sessions (:mod:`service.sessions`) for the pages and for
+    reads under ``/v1``. ``internal_token`` is a per-process random key that only in-process
+    requests (the web forms forwarding to the API after their CSRF check) can know."""
+
+    def __init__(self, app: ASGIApp, keys: list[str], internal_token: str) -> None:
         self.app = app
         self.keys = [k.encode() for k in keys]
+        self.key_texts = keys
+        self.internal = internal_token.encode()
 
     def _valid(self, token: bytes) -> bool:
-        ok = False
+        ok = hmac.compare_digest(token, self.internal)
         for key in self.keys:  # every key compared, in constant time
             ok |= hmac.compare_digest(token, key)
         return ok
@@ -116,15 +126,22 @@ class BearerAuthMiddleware:
         if scheme.lower() == b"bearer" and token.strip() and self._valid(token.strip()):
             await self.app(scope, receive, send)
             return
-        # The sign-in cookie opens the pages, and reads under /v1 (the pages' figures and job
-        # polling); writes under /v1 still need the Authorization header.
-        cookie = _cookie(scope)
+        # A sign-in session opens the pages, and reads under /v1 (the pages' figures and job
+        # progress); writes under /v1 need the Authorization header.
         read = scope.get("method") in ("GET", "HEAD")
-        if cookie and self._valid(cookie) and (web or read):
-            await self.app(scope, receive, send)
-            return
+        cookie = cookie_value(scope, SESSION_COOKIE)
+        if cookie and (web or read):
+            db = scope["app"].state.db
+            session = await anyio.to_thread.run_sync(find_session, db, cookie, self.key_texts)
+            if session is not None:
+                scope.setdefault("state", {})["web_session"] = session
+                await self.app(scope, receive, send)
+                return
         if web and read:
             await RedirectResponse(f"/login?next={quote(path)}", status_code=303)(scope, receive, send)
+            return
+        if web:  # a form posted without a valid session: sign in again
+            await RedirectResponse("/login", status_code=303)(scope, receive, send)
             return
         challenge = 'Bearer realm="spacearm"' + ("" if not header else ', error="invalid_token"')
         detail = "missing API key: send Authorization: Bearer <key>" if not header else "invalid API key"
@@ -138,11 +155,54 @@ class BearerAuthMiddleware:
         await response(scope, receive, send)
 
 
+#: The pages' Content-Security-Policy: scripts, styles and images from this site only, no
+#: framing, forms post to this site only.
+CSP = (
+    "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self'; "
+    "object-src 'none'; base-uri 'none'; frame-ancestors 'none'; form-action 'self'"
+)
+
+
+class SecurityHeadersMiddleware:
+    """``X-Content-Type-Options: nosniff`` on every response; on HTML pages also the CSP,
+    ``X-Frame-Options: DENY`` and ``Referrer-Policy: same-origin`` (a page never leaks its URL,
+    which may hold ids, to another site; ``no-referrer`` would also blank the ``Origin`` of the
+    pages' own form posts, which the CSRF check reads)."""
+
+    def __init__(self, app: ASGIApp, csp: str = CSP) -> None:
+        self.app = app
+        self.csp = csp.encode()
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def sender(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                headers = list(message.get("headers", []))
+                names = {k.lower() for k, _ in headers}
+                extra = [(b"x-content-type-options", b"nosniff")]
+                content_type = next((v for k, v in headers if k.lower() == b"content-type"), b"")
+                if content_type.startswith(b"text/html"):
+                    extra += [(b"x-frame-options", b"DENY"), (b"referrer-policy", b"same-origin")]
+                    if b"content-security-policy" not in names:
+                        extra.append((b"content-security-policy", self.csp))
+                message = dict(message, headers=headers + [(k, v) for k, v in extra if k not in names])
+            await send(message)
+
+        await self.app(scope, receive, sender)
+
+
 def install(app: FastAPI, settings: Settings) -> None:
     """Add the guards to ``app`` and say in the start-up log whether authentication is on."""
     keys = settings.keys()
+    app.state.internal_token = secrets.token_urlsafe(32)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
-    app.add_middleware(BearerAuthMiddleware, keys=keys)  # added last = outermost: unauthenticated bodies are never read
+    # added after = outside: unauthenticated bodies are never read
+    app.add_middleware(BearerAuthMiddleware, keys=keys, internal_token=app.state.internal_token)
+    app.add_middleware(MethodsMiddleware, router=app)
+    app.add_middleware(SecurityHeadersMiddleware)
     if keys:
         log.info("authentication is on: /v1 requires a bearer key (%d key(s) configured)", len(keys))
     else:

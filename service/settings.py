@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 
 from pydantic import Field, SecretStr
@@ -35,6 +36,38 @@ class Settings(BaseSettings):
         "generation over the cluster (needs the `dask` extra)",
     )
     dask_chunks: int = Field(default=8, ge=1, description="pieces each generation is split into for the Dask cluster")
+    api_threads: int = Field(
+        default=16, ge=2, le=256, description="threads of the API's pool for blocking handlers (database reads, plans, figures)"
+    )
+    db_pool_size: int | None = Field(
+        default=None,
+        ge=1,
+        le=512,
+        description="database connections per API process; default: api_threads, so a handler never waits for one",
+    )
+    db_pool_timeout_s: float = Field(
+        default=5.0, gt=0, le=300, description="how long a request waits for a database connection before a 503"
+    )
+    max_concurrent_plans: int | None = Field(
+        default=None, ge=1, le=256, description="synchronous plans computed at once per API process; default: the CPU count"
+    )
+    plan_queue: int = Field(default=16, ge=0, le=10_000, description="plan requests that may wait for a slot before a 503")
+    plan_queue_timeout_s: float = Field(
+        default=10.0, gt=0, le=600, description="how long a plan request waits for a slot before a 503 with Retry-After"
+    )
+    storage_quota_bytes: int | None = Field(
+        default=10 * 2**30,
+        ge=1,
+        description="size of the database (plans, jobs, robots) beyond which new plans and jobs get 507; unset for no quota",
+    )
+    cookie_secure: bool = Field(default=False, description="mark the sign-in cookie Secure (set it when clients use HTTPS)")
+    session_hours: float = Field(default=12.0, gt=0, le=24 * 365, description="lifetime of a web sign-in session")
+
+    def pool_size(self) -> int:
+        return self.db_pool_size or self.api_threads
+
+    def plan_slots(self) -> int:
+        return self.max_concurrent_plans or max(1, os.cpu_count() or 1)
 
     def keys(self) -> list[str]:
         """The configured API keys (empty: authentication is off)."""

@@ -1,10 +1,13 @@
 """The worker: polls the queue, runs one job at a time. SIGTERM/SIGINT stop it gracefully: the
-running job is stopped after its current generation and put back in the queue."""
+running job is stopped within a second and put back in the queue. Database faults never end
+the worker: it backs off and tries again (and gives a running job back, see
+:mod:`service.jobs`)."""
 
 from __future__ import annotations
 
 import logging
 import os
+import random
 import signal
 import socket
 import threading
@@ -14,12 +17,14 @@ from typing import Any
 from engine import warm_up
 from engine.tuning import MapFn, dask_map
 from service import queue
-from service.db import Database
-from service.jobs import run_job
+from service.db import Database, unavailable_reason
+from service.jobs import is_database_fault, run_job
 from service.migrate import seed_presets
 from service.settings import Settings
 
 log = logging.getLogger("spacearm.worker")
+
+MAX_BACKOFF_S = 30.0  # longest wait between tries while the database is unavailable
 
 
 def worker_id() -> str:
@@ -41,7 +46,6 @@ def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Ev
     seconds = warm_up()  # load (or compile) the kernels before claiming a job
     log.info("engine kernels ready in %.1f s", seconds)
     db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
-    seed_presets(db)
     me = worker_id()
     dask_client = None
     map_fn: MapFn = map
@@ -56,9 +60,24 @@ def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Ev
         log.info("GA evaluation spread over the Dask cluster at %s in %d chunks", settings.dask_scheduler, chunks)
     log.info("worker %s polling %s every %.2f s", me, settings.database_url, settings.worker_poll_seconds)
     processed = 0
+    seeded = False
+    backoff = 0.0
     try:
         while not stop.is_set():
-            claim = queue.claim(db, me, settings.job_lease_seconds)
+            try:
+                if not seeded:
+                    seed_presets(db)
+                    seeded = True
+                claim = queue.claim(db, me, settings.job_lease_seconds)
+            except Exception as exc:  # a database fault: wait it out instead of exiting
+                if not is_database_fault(exc):
+                    raise
+                db.recover(exc)
+                backoff = min(max(2.0 * backoff, settings.worker_poll_seconds), MAX_BACKOFF_S)
+                log.warning("the database is unavailable (%s); retrying in %.1f s", unavailable_reason(exc), backoff)
+                stop.wait(backoff * (0.5 + random.random()))
+                continue
+            backoff = 0.0
             if claim is None:
                 if once:
                     break

@@ -10,12 +10,13 @@ from functools import partial
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select
 
 from service import figures
-from service.deps import SessionDep
 from service.errors import ApiError, ApiValidationError, NotFoundError, responses
 from service.models import Plan, TuningJob
+from service.storage import unpack_trajectory
 
 router = APIRouter(tags=["figures"])
 
@@ -56,7 +57,8 @@ def _image(request: Request, content: bytes, fmt: str, hit: bool, immutable: boo
 
 
 def plan_dict(p: Plan) -> dict[str, Any]:
-    return {"id": p.id, "method": p.method, "metrics": p.metrics, "request": p.request, "trajectory": p.trajectory}
+    trajectory = unpack_trajectory(p.trajectory_data)
+    return {"id": p.id, "method": p.method, "metrics": p.metrics, "request": p.request, "trajectory": trajectory}
 
 
 @router.get(
@@ -68,13 +70,18 @@ def plan_dict(p: Plan) -> dict[str, Any]:
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
-def compare_plans_figure(
+async def compare_plans_figure(
     name: str,
     request: Request,
-    session: SessionDep,
     ids: Annotated[str, Query(description="comma-separated plan ids", min_length=1, max_length=2000)],
     format: Format = "svg",
 ) -> Response:
+    async with request.app.state.figure_admission.slot():
+        response: Response = await run_in_threadpool(_compare_plans_figure, name, request, ids, format)
+        return response
+
+
+def _compare_plans_figure(name: str, request: Request, ids: str, format: str) -> Response:
     if name not in figures.COMPARE_FIGURES:
         raise UnknownFigureError(name, figures.COMPARE_FIGURES)
     plan_ids = list(dict.fromkeys(i.strip() for i in ids.split(",") if i.strip()))
@@ -85,11 +92,12 @@ def compare_plans_figure(
         )
 
     def render() -> bytes:
-        rows = {p.id: p for p in session.scalars(select(Plan).where(Plan.id.in_(plan_ids))).all()}
-        for pid in plan_ids:
-            if pid not in rows:
-                raise NotFoundError("plan", pid)
-        data = [figures.plan_data(pid, partial(plan_dict, rows[pid])) for pid in plan_ids]
+        with request.app.state.db.session() as session:
+            rows = {p.id: p for p in session.scalars(select(Plan).where(Plan.id.in_(plan_ids))).all()}
+            for pid in plan_ids:
+                if pid not in rows:
+                    raise NotFoundError("plan", pid)
+            data = [figures.plan_data(pid, partial(plan_dict, rows[pid])) for pid in plan_ids]
         return figures.render_compare_figure(data, format)
 
     content, hit = figures.cached(("compare", name, tuple(plan_ids), format), render)
@@ -108,15 +116,21 @@ def compare_plans_figure(
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
-def get_plan_figure(plan_id: str, name: str, request: Request, session: SessionDep, format: Format = "svg") -> Response:
+async def get_plan_figure(plan_id: str, name: str, request: Request, format: Format = "svg") -> Response:
     if name not in figures.PLAN_FIGURES:
         raise UnknownFigureError(name, list(figures.PLAN_FIGURES))
+    async with request.app.state.figure_admission.slot():
+        response: Response = await run_in_threadpool(_plan_figure, plan_id, name, request, format)
+        return response
 
+
+def _plan_figure(plan_id: str, name: str, request: Request, format: str) -> Response:
     def load() -> dict[str, Any]:
-        row = session.get(Plan, plan_id)
-        if row is None:
-            raise NotFoundError("plan", plan_id)
-        return plan_dict(row)
+        with request.app.state.db.session() as session:
+            row = session.get(Plan, plan_id)
+            if row is None:
+                raise NotFoundError("plan", plan_id)
+            return plan_dict(row)
 
     content, hit = figures.cached(
         ("plan", plan_id, name, format), lambda: figures.render_plan_figure(figures.plan_data(plan_id, load), name, format)
@@ -132,20 +146,27 @@ def get_plan_figure(plan_id: str, name: str, request: Request, session: SessionD
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
-def get_tuning_job_figure(job_id: str, name: str, request: Request, session: SessionDep, format: Format = "svg") -> Response:
+async def get_tuning_job_figure(job_id: str, name: str, request: Request, format: Format = "svg") -> Response:
     if name not in figures.JOB_FIGURES:
         raise UnknownFigureError(name, figures.JOB_FIGURES)
-    row = session.get(TuningJob, job_id)
-    if row is None:
-        raise NotFoundError("tuning job", job_id)
-    job: dict[str, Any] = {
-        "id": row.id,
-        "status": row.status,
-        "method": row.request.get("method"),
-        "progress": row.progress,
-        "result": row.result if row.result and not (row.progress or {}).get("history") else None,
-        "updated_at": row.updated_at.isoformat() if row.updated_at else None,
-    }
+    async with request.app.state.figure_admission.slot():
+        response: Response = await run_in_threadpool(_job_figure, job_id, name, request, format)
+        return response
+
+
+def _job_figure(job_id: str, name: str, request: Request, format: str) -> Response:
+    with request.app.state.db.session() as session:
+        row = session.get(TuningJob, job_id)
+        if row is None:
+            raise NotFoundError("tuning job", job_id)
+        job: dict[str, Any] = {
+            "id": row.id,
+            "status": row.status,
+            "method": row.request.get("method"),
+            "progress": row.progress,
+            "result": row.result if row.result and not (row.progress or {}).get("history") else None,
+            "updated_at": row.updated_at.isoformat() if row.updated_at else None,
+        }
     progress = job["progress"] or {}
     version = (job["status"], progress.get("generation"), len(progress.get("history") or []), job["updated_at"])
     content, hit = figures.cached(("job", job_id, name, format, version), lambda: figures.render_job_figure(job, format))

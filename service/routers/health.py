@@ -1,41 +1,81 @@
-"""Liveness and readiness."""
+"""Liveness and readiness. Both are ``async`` handlers: liveness touches nothing and never waits
+behind plan work; readiness runs its database checks in a thread of its own small pool, on a
+database connection of its own (see ``app.state.health_db``), with a time limit, so a saturated
+API still reports promptly."""
 
 from __future__ import annotations
 
+import os
+import socket
+from typing import Any
+
+import anyio
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
+from sqlalchemy.dialects import postgresql, sqlite
 
-from service.db import Database
+from service.db import Database, unavailable_reason
 from service.migrate import current_revision, head_revision
+from service.models import ServiceProbe, utcnow
 from service.schemas import Health
 
 router = APIRouter(tags=["health"])
 
+READY_TIMEOUT_S = 3.0
+PROBE_NAME = f"readyz:{socket.gethostname()}:{os.getpid()}"[:64]
+
 
 @router.get("/healthz", operation_id="healthz", response_model=Health, response_model_exclude_none=True, summary="Liveness")
-def healthz() -> Health:
+async def healthz() -> Health:
     return Health(status="ok")
+
+
+def _write_probe(db: Database) -> None:
+    """Rewrite this process's row of ``service_probes``: the database takes writes."""
+    values: dict[str, Any] = {"name": PROBE_NAME, "updated_at": utcnow()}
+    with db.session() as session:
+        dialect = session.get_bind().dialect.name
+        insert = (postgresql if dialect == "postgresql" else sqlite).insert(ServiceProbe).values(**values)
+        session.execute(insert.on_conflict_do_update(index_elements=["name"], set_={"updated_at": values["updated_at"]}))
+
+
+def check_database(health_db: Database, db: Database) -> Health:
+    """Reachable, at the head revision, taking writes, and (SQLite) the file at its path is the
+    file the service holds."""
+    head = head_revision(db.url)
+    try:
+        db.check_file()  # reconnects the API's pool if the file was replaced
+        health_db.check_file()
+        revision = current_revision(health_db.engine)
+        if revision != head:
+            return Health(status="unavailable", kernels="ok", database="not migrated", revision=revision, head=head)
+        _write_probe(health_db)
+    except Exception as exc:
+        reason = health_db.recover(exc) or unavailable_reason(exc) or f"unreachable: {type(exc).__name__}"
+        db.recover(exc)
+        return Health(status="unavailable", kernels="ok", database=reason, head=head)
+    return Health(status="ok", kernels="ok", database="ok", revision=revision, head=head)
 
 
 @router.get(
     "/readyz",
     operation_id="readyz",
     response_model=Health,
-    summary="Readiness: the engine's kernels are loaded, the database is reachable and at the head revision",
+    summary="Readiness: the engine's kernels are loaded; the database is reachable, takes writes and is at the head revision",
     responses={503: {"description": "not ready", "model": Health}},
 )
-def readyz(request: Request) -> Health | JSONResponse:
-    kernels = request.app.state.kernels.state
+async def readyz(request: Request) -> Health | JSONResponse:
+    state = request.app.state
+    kernels = state.kernels.state
     if kernels != "ok":
         return JSONResponse(Health(status="unavailable", kernels=kernels).model_dump(exclude_none=True), status_code=503)
-    db: Database = request.app.state.db
-    head = head_revision(db.url)
-    try:
-        revision = current_revision(db.engine)
-    except Exception as exc:
-        body = Health(status="unavailable", kernels=kernels, database=f"unreachable: {type(exc).__name__}", head=head)
-        return JSONResponse(body.model_dump(), status_code=503)
-    if revision != head:
-        body = Health(status="unavailable", kernels=kernels, database="not migrated", revision=revision, head=head)
-        return JSONResponse(body.model_dump(), status_code=503)
-    return Health(status="ok", kernels=kernels, database="ok", revision=revision, head=head)
+    health: Health | None = None
+    with anyio.move_on_after(READY_TIMEOUT_S):
+        health = await anyio.to_thread.run_sync(
+            check_database, state.health_db, state.db, limiter=state.health_limiter, abandon_on_cancel=True
+        )
+    if health is None:
+        health = Health(status="unavailable", kernels=kernels, database=f"no answer within {READY_TIMEOUT_S:g} s")
+    if health.status != "ok":
+        return JSONResponse(health.model_dump(exclude_none=True), status_code=503, headers={"Retry-After": "5"})
+    return health

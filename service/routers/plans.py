@@ -1,11 +1,12 @@
-"""Synchronous plans. Handlers are plain ``def`` functions, so FastAPI runs them in its thread
-pool and a long plan never blocks the event loop (the engine's kernels release the GIL, so plans
-run in parallel).
+"""Synchronous plans. A plan request waits for a slot of the plan admission
+(:mod:`service.admission`: a few plans at once, a short queue, then 503 with ``Retry-After``) on
+the event loop, then runs in the thread pool (the engine's kernels release the GIL, so plans run
+in parallel on every core). Reads are plain ``def`` handlers in the thread pool.
 
 Plan bodies are written once, by orjson from the planner's arrays (:mod:`service.jsonio`): the
-trajectory is neither copied into Python lists nor validated again on the way out, and a stored
-trajectory is spliced into the response as the JSON text the database holds. ``fields`` leaves
-out the large sections."""
+trajectory is neither copied into Python lists nor validated again on the way out. Trajectories
+are stored as compressed arrays (:mod:`service.storage`). ``fields`` leaves out the large
+sections."""
 
 from __future__ import annotations
 
@@ -14,8 +15,9 @@ import time
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Query, Response, status
-from sqlalchemy import Text, cast, func, select
+from fastapi import APIRouter, Query, Request, Response, status
+from fastapi.concurrency import run_in_threadpool
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from engine import PlanResult, make_inverse, plan, replay
@@ -26,8 +28,10 @@ from service.db import Database
 from service.deps import SessionDep, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
 from service.models import Plan
+from service.quota import check_quota
 from service.schemas import PLAN_SECTIONS, PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
 from service.settings import Settings
+from service.storage import pack_trajectory, unpack_trajectory
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 
@@ -116,13 +120,9 @@ def plan_summary(p: Plan) -> PlanSummary:
     )
 
 
-def plan_json(summary: PlanSummary, sections: dict[str, Any], raw_trajectory: str | None = None) -> bytes:
-    """The JSON body of a plan: its summary and ``sections`` (numpy arrays allowed), and a
-    trajectory that is already JSON text spliced in as it is."""
-    body = jsonio.dumps({**summary.model_dump(mode="json"), **sections})
-    if raw_trajectory is None:
-        return body
-    return body[:-1] + b',"trajectory":' + raw_trajectory.encode() + b"}"
+def plan_json(summary: PlanSummary, sections: dict[str, Any]) -> bytes:
+    """The JSON body of a plan: its summary and ``sections`` (numpy arrays allowed)."""
+    return jsonio.dumps({**summary.model_dump(mode="json"), **sections})
 
 
 @router.post(
@@ -133,11 +133,19 @@ def plan_json(summary: PlanSummary, sections: dict[str, Any], raw_trajectory: st
     summary="Plan a Cartesian task (synchronous) and store the plan",
     responses=responses(404, 422),
 )
-def create_plan(body: PlanRequest, session: SessionDep, settings: SettingsDep, fields: FieldsQuery = None) -> Response:
+async def create_plan(body: PlanRequest, request: Request, settings: SettingsDep, fields: FieldsQuery = None) -> Response:
     sections = parse_fields(fields)
-    row, trajectory = compute_plan(session, body, settings)
-    session.add(row)
-    session.commit()  # before the response goes out: a client's next request must see it
+    async with request.app.state.plan_admission.slot():
+        response: Response = await run_in_threadpool(_create_plan, request.app.state.db, body, settings, sections)
+        return response
+
+
+def _create_plan(db: Database, body: PlanRequest, settings: Settings, sections: set[str]) -> Response:
+    with db.session() as session:
+        row, trajectory = compute_plan(session, body, settings)
+        check_quota(session, settings.storage_quota_bytes, len(row.trajectory_data))
+        session.add(row)
+        session.commit()  # before the response goes out: a client's next request must see it
     parts = {"trajectory": trajectory, "replay": row.replay}
     content = plan_json(plan_summary(row), {name: parts[name] for name in PLAN_SECTIONS if name in sections})
     return Response(content, status_code=201, media_type="application/json", headers={"Location": f"/v1/plans/{row.id}"})
@@ -146,6 +154,7 @@ def create_plan(body: PlanRequest, session: SessionDep, settings: SettingsDep, f
 def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tuple[Plan, dict[str, np.ndarray]]:
     """Plan (and replay) a request: the row to store and the trajectory arrays."""
     robot_id, model = resolve_robot(session, body.robot_id, body.robot)
+    session.rollback()  # end the read: no connection is held while the plan is computed
     task = build_task(model, body.task)
     inverse = check_method(body.method.name, body.method.params)
     try:
@@ -170,12 +179,12 @@ def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tup
     trajectory = trajectory_out(result)
     row = Plan(
         robot_id=robot_id,
-        request=clean(body.model_dump(mode="json")),
+        request=clean(body.stored()),
         method=clean({"name": result.method, "params": result.params}),
         success=result.success,
         message=result.message,
         metrics=metrics_out(result.metrics),
-        trajectory=trajectory,
+        trajectory_data=pack_trajectory(trajectory),
         replay=replay_out(checked) if checked is not None else (not_replayed(skipped) if skipped else None),
         elapsed_s=elapsed,
     )
@@ -193,7 +202,9 @@ def rehearse(db: Database, settings: Settings) -> None:
             session.add(row)
             session.flush()
             plan_json(plan_summary(row), {"trajectory": trajectory, "replay": row.replay})
-            session.execute(select(*SUMMARY_COLUMNS, Plan.replay, cast(Plan.trajectory, Text)).where(Plan.id == row.id)).first()
+            check_quota(session, settings.storage_quota_bytes, len(row.trajectory_data))
+            found = session.execute(select(*SUMMARY_COLUMNS, Plan.replay, Plan.trajectory_data).where(Plan.id == row.id)).one()
+            unpack_trajectory(found[-1])
         finally:
             session.rollback()
 
@@ -219,11 +230,14 @@ def get_plan(plan_id: str, session: SessionDep, fields: FieldsQuery = None) -> R
     sections = parse_fields(fields)
     columns: list[Any] = [*SUMMARY_COLUMNS, Plan.replay]
     if "trajectory" in sections:
-        columns.append(cast(Plan.trajectory, Text))  # the stored JSON text, not parsed and written again
+        columns.append(Plan.trajectory_data)
     found = session.execute(select(*columns).where(Plan.id == plan_id)).first()
     if found is None:
         raise NotFoundError("plan", plan_id)
     summary = PlanSummary(**{c.key: v for c, v in zip(SUMMARY_COLUMNS, found, strict=False)})
-    extra = {"replay": found[len(SUMMARY_COLUMNS)]} if "replay" in sections else {}
-    raw = found[-1] if "trajectory" in sections else None
-    return Response(plan_json(summary, extra, raw), media_type="application/json")
+    parts = {"replay": found[len(SUMMARY_COLUMNS)]}
+    if "trajectory" in sections:
+        parts["trajectory"] = unpack_trajectory(found[-1])
+    return Response(
+        plan_json(summary, {name: parts[name] for name in PLAN_SECTIONS if name in sections}), media_type="application/json"
+    )

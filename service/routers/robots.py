@@ -10,10 +10,12 @@ from sqlalchemy.orm import Session
 from engine import State, generalized_jacobian
 from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
+from service import jsonio
 from service.convert import clean, robot_model
-from service.deps import SessionDep
+from service.deps import SessionDep, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, responses
 from service.models import Robot
+from service.quota import check_quota
 from service.schemas import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams
 
 router = APIRouter(prefix="/v1/robots", tags=["robots"])
@@ -54,9 +56,11 @@ def list_robots(
     summary="Store a robot parameter set (schema of robot-table1.yaml, SI units)",
     responses=responses(422),
 )
-def create_robot(body: RobotParams, session: SessionDep, response: Response) -> RobotOut:
+def create_robot(body: RobotParams, session: SessionDep, settings: SettingsDep, response: Response) -> RobotOut:
     model = robot_model(body.model_dump(exclude_none=True), ("body",))
-    robot = Robot(name=model.name, parameters=clean(model.to_dict()), preset=False)
+    parameters = clean(model.to_dict())
+    check_quota(session, settings.storage_quota_bytes, len(jsonio.dumps(parameters)))
+    robot = Robot(name=model.name, parameters=parameters, preset=False)
     session.add(robot)
     session.commit()  # before the response goes out: a client's next request must see it
     response.headers["Location"] = f"/v1/robots/{robot.id}"

@@ -3,6 +3,7 @@ poll, read the result, cancel. Workers run them (``spacearm worker``)."""
 
 from __future__ import annotations
 
+import hashlib
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request, Response, status
@@ -10,18 +11,34 @@ from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from service import queue
+from service import jsonio, queue
 from service.convert import resolve_robot
 from service.db import Database
 from service.deps import SessionDep, SettingsDep
-from service.errors import MAX_OFFSET, ConflictError, NotFoundError, TooManyRequestsError, responses
-from service.jobs import validate_request
+from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, TooManyRequestsError, responses
+from service.jobs import MAX_JOB_JOINT_STEPS, validate_request
 from service.models import TuningJob
+from service.quota import check_quota
 from service.schemas import JobProgress, JobStatus, TuningJobList, TuningJobOut, TuningJobRequest, TuningJobResult
 
 router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"])
 
 RETRY_AFTER_S = 10  # Retry-After of a 429 (the queue is full)
+
+
+def body_fingerprint(body: TuningJobRequest) -> str:
+    """SHA-256 of the validated body in a canonical form (sorted keys, defaults filled in), so
+    the same request written differently has the same fingerprint."""
+    return hashlib.sha256(jsonio.dumps_sorted(body.stored())).hexdigest()
+
+
+def replayed(job: TuningJob, key: str, fingerprint: str, response: Response) -> TuningJobOut:
+    """The answer to a retry: the first job, unless the key came with another body (422)."""
+    if job.idempotency_fingerprint is not None and job.idempotency_fingerprint != fingerprint:
+        msg = f"the Idempotency-Key {key!r} was used for a different request body (job {job.id}); use a new key"
+        raise ApiValidationError(msg, [{"loc": ["header", "Idempotency-Key"], "msg": msg}])
+    response.headers["Location"] = f"/v1/tuning-jobs/{job.id}"
+    return job_out(job)
 
 
 def job_out(job: TuningJob) -> TuningJobOut:
@@ -49,9 +66,11 @@ def job_out(job: TuningJob) -> TuningJobOut:
     status_code=status.HTTP_202_ACCEPTED,
     summary="Submit a GA tuning job (asynchronous)",
     description="Returns 202 with `Location` of the job. Send `Idempotency-Key` to make retries safe: "
-    "the same key returns the same job. At most 200,000 plan evaluations per job "
-    "(population * (generations + 1) * tasks, twice with `compare_with_dls`); 429 with `Retry-After` "
-    "when `SPACEARM_MAX_QUEUED_JOBS` jobs are already queued.",
+    "the same key with the same body returns the same job; the same key with another body is a 422. "
+    "A job is bounded by its work: at most 200,000 plan evaluations "
+    "(population * (generations + 1) * tasks, twice with `compare_with_dls`) and at most "
+    f"{MAX_JOB_JOINT_STEPS:.2g} joint-steps (the same times the plan-steps of the tasks times the robot's joints; "
+    "about a microsecond each); 429 with `Retry-After` when `SPACEARM_MAX_QUEUED_JOBS` jobs are already queued.",
     responses=responses(404, 422),
 )
 def create_tuning_job(
@@ -60,14 +79,23 @@ def create_tuning_job(
     settings: SettingsDep,
     request: Request,
     response: Response,
-    idempotency_key: Annotated[str | None, Header(alias="Idempotency-Key", max_length=200)] = None,
+    idempotency_key: Annotated[
+        str | None,
+        Header(
+            alias="Idempotency-Key",
+            min_length=1,
+            max_length=255,
+            pattern=r"^[\x20-\x7e]+$",
+            description="1 to 255 printable ASCII characters; a retry with the same key and body returns the first job",
+        ),
+    ] = None,
 ) -> TuningJobOut:
     db: Database = request.app.state.db
-    if idempotency_key:
+    fingerprint = body_fingerprint(body)
+    if idempotency_key is not None:
         existing = session.scalar(select(TuningJob).where(TuningJob.idempotency_key == idempotency_key))
         if existing is not None:
-            response.headers["Location"] = f"/v1/tuning-jobs/{existing.id}"
-            return job_out(existing)
+            return replayed(existing, idempotency_key, fingerprint, response)
     robot_id, model = resolve_robot(session, body.robot_id, body.robot)
     validate_request(model, body)
     queued = session.scalar(select(func.count()).select_from(TuningJob).where(TuningJob.status == "queued")) or 0
@@ -75,13 +103,14 @@ def create_tuning_job(
         raise TooManyRequestsError(
             f"{queued} tuning jobs are queued (at most {settings.max_queued_jobs}); retry later", RETRY_AFTER_S
         )
+    check_quota(session, settings.storage_quota_bytes, len(jsonio.dumps(body.stored())))
     session.close()  # the insert runs in its own transaction (retried if SQLite is locked)
 
     def insert(s: Session) -> TuningJob:
         job = TuningJob(
             status="queued",
             robot_id=robot_id,
-            request=body.model_dump(mode="json"),
+            request=body.stored(),
             progress={
                 "generation": 0,
                 "generations": body.ga.generations * (2 if body.compare_with_dls else 1),
@@ -91,6 +120,7 @@ def create_tuning_job(
             max_attempts=settings.job_max_attempts,
             cancel_requested=False,
             idempotency_key=idempotency_key,
+            idempotency_fingerprint=fingerprint if idempotency_key is not None else None,
         )
         s.add(job)
         return job
@@ -102,8 +132,7 @@ def create_tuning_job(
             existing = s.scalar(select(TuningJob).where(TuningJob.idempotency_key == idempotency_key))
         if existing is None:
             raise
-        response.headers["Location"] = f"/v1/tuning-jobs/{existing.id}"
-        return job_out(existing)
+        return replayed(existing, idempotency_key or "", fingerprint, response)
     response.headers["Location"] = f"/v1/tuning-jobs/{job.id}"
     return job_out(job)
 

@@ -2,22 +2,31 @@
 recent plans and tuning jobs and the forms; a plan page with its metrics and figures; a job
 page with live progress (it polls the JSON API) and the convergence figure.
 
-The forms post to ``/web/...``; those handlers forward the request to the JSON API in-process
-(``httpx.ASGITransport`` on this same app, with the caller's headers), so the page goes through
-exactly the validation, limits and authentication of ``POST /v1/plans`` and
-``POST /v1/tuning-jobs``. All routes here are left out of the OpenAPI document."""
+The forms post to ``/web/...``; those handlers check the form's CSRF token and its ``Origin``
+(:func:`check_form`), then forward the request to the JSON API in-process
+(``httpx.ASGITransport`` on this same app), so the page goes through exactly the validation and
+limits of ``POST /v1/plans`` and ``POST /v1/tuning-jobs``. With keys configured, the pages need
+a sign-in session (:mod:`service.sessions`). All routes here are left out of the OpenAPI
+document.
+
+CSRF: every form carries a token. Signed in, it is the session's own token (kept server-side);
+otherwise it is double-submitted: a random ``spacearm_csrf`` cookie (HttpOnly, SameSite=Strict)
+that the form must echo. A form whose ``Origin`` (or, without one, ``Referer``) names another
+site is refused either way."""
 
 from __future__ import annotations
 
 import hmac
 import json
 import math
+import secrets
 from pathlib import Path
 from typing import Any
-from urllib.parse import parse_qs
+from urllib.parse import parse_qs, urlsplit
 
 import httpx
 from fastapi import APIRouter, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from sqlalchemy import select
@@ -27,14 +36,14 @@ from service import figures
 from service.deps import get_db
 from service.models import Plan, Robot, TuningJob
 from service.routers.tasks import PRESETS
-from service.security import KEY_COOKIE
+from service.sessions import CSRF_COOKIE, SESSION_COOKIE, close_session, open_session
 
 router = APIRouter(include_in_schema=False)
 
 TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
 env = Environment(loader=FileSystemLoader(TEMPLATES), autoescape=select_autoescape(["html"]))
 
-FORWARDED_HEADERS = ("authorization", "cookie", "x-api-key")
+FORWARDED_HEADERS = ("x-request-id",)
 
 METRIC_ROWS = [
     ("objective_b", "objective B", "", 1.0),
@@ -68,8 +77,45 @@ def fmt(value: Any, scale: float | None = 1.0) -> str:
 env.filters["fmt"] = fmt
 
 
-def page(name: str, status_code: int = 200, **context: Any) -> HTMLResponse:
-    return HTMLResponse(env.get_template(name).render(**context), status_code=status_code)
+def page(name: str, status_code: int = 200, *, request: Request | None = None, **context: Any) -> HTMLResponse:
+    """A rendered page; with ``request``, its forms get the CSRF token (and a cookie if needed)."""
+    token, fresh = csrf_token(request) if request is not None else ("", False)
+    response = HTMLResponse(env.get_template(name).render(csrf_token=token, **context), status_code=status_code)
+    if fresh:
+        secure = request.app.state.settings.cookie_secure if request is not None else False
+        response.set_cookie(CSRF_COOKIE, token, httponly=True, samesite="strict", secure=secure, path="/")
+    return response
+
+
+def csrf_token(request: Request) -> tuple[str, bool]:
+    """The token the request's forms must carry: the session's, or the double-submit cookie's
+    (``fresh`` when a new cookie must be set)."""
+    session = request.scope.get("state", {}).get("web_session")
+    if session is not None:
+        return session.csrf_token, False
+    existing = request.cookies.get(CSRF_COOKIE, "")
+    return (existing, False) if len(existing) >= 32 else (secrets.token_urlsafe(32), True)
+
+
+class FormRejectedError(Exception):
+    pass
+
+
+def check_form(request: Request, form: dict[str, str]) -> None:
+    """Refuse a form from another site: its ``Origin`` (or ``Referer``) must be this site and its
+    CSRF token must match (compared in constant time)."""
+    host = request.headers.get("host", "")
+    origin = request.headers.get("origin") or request.headers.get("referer") or ""
+    if origin and urlsplit(origin).netloc != host:
+        raise FormRejectedError(f"the form came from another site ({urlsplit(origin).netloc or origin})")
+    expected, fresh = csrf_token(request)
+    sent = form.get("csrf_token", "")
+    if fresh or not sent or not hmac.compare_digest(sent.encode(), expected.encode()):
+        raise FormRejectedError("the form has expired or was not sent by this site; reload the page and try again")
+
+
+def rejected(request: Request, error: FormRejectedError) -> HTMLResponse:
+    return page("error.html", 403, request=request, title="Form refused", detail=str(error))
 
 
 def method_forms() -> list[dict[str, Any]]:
@@ -114,7 +160,7 @@ def index_context(request: Request) -> dict[str, Any]:
 
 @router.get("/", response_class=HTMLResponse)
 def index(request: Request) -> HTMLResponse:
-    return page("index.html", form={}, **index_context(request))
+    return page("index.html", request=request, form={}, **index_context(request))
 
 
 @router.get("/plans/{plan_id}", response_class=HTMLResponse)
@@ -134,10 +180,11 @@ def plan_page(plan_id: str, request: Request) -> HTMLResponse:
             ).where(Plan.id == plan_id)
         ).first()
     if row is None:
-        return page("error.html", 404, title="Plan not found", detail=f"plan {plan_id!r} does not exist")
+        return page("error.html", 404, request=request, title="Plan not found", detail=f"plan {plan_id!r} does not exist")
     plan = row._asdict()
     return page(
         "plan.html",
+        request=request,
         plan=plan,
         metric_rows=METRIC_ROWS,
         figure_names=list(figures.PLAN_FIGURES),
@@ -151,7 +198,9 @@ def job_page(job_id: str, request: Request) -> HTMLResponse:
     with get_db(request).session() as s:
         job = s.get(TuningJob, job_id)
         if job is None:
-            return page("error.html", 404, title="Tuning job not found", detail=f"tuning job {job_id!r} does not exist")
+            return page(
+                "error.html", 404, request=request, title="Tuning job not found", detail=f"tuning job {job_id!r} does not exist"
+            )
         data: dict[str, Any] = {
             "id": job.id,
             "status": job.status,
@@ -162,7 +211,7 @@ def job_page(job_id: str, request: Request) -> HTMLResponse:
             "error": job.error,
             "created_at": job.created_at,
         }
-    return page("job.html", job=data, request_json=json.dumps(data["request"].get("ga", {})))
+    return page("job.html", request=request, job=data, request_json=json.dumps(data["request"].get("ga", {})))
 
 
 async def _form(request: Request) -> dict[str, str]:
@@ -172,10 +221,9 @@ async def _form(request: Request) -> dict[str, str]:
 
 async def _forward(request: Request, path: str, body: dict[str, Any]) -> httpx.Response:
     headers = {k: v for k, v in request.headers.items() if k.lower() in FORWARDED_HEADERS}
-    key = request.cookies.get(KEY_COOKIE)
-    if key and "authorization" not in {k.lower() for k in headers}:
-        # The sign-in cookie (SameSite=Strict, so only our own pages send it) stands for the key.
-        headers["authorization"] = f"Bearer {key}"
+    # The form passed check_form (and the session check, with keys configured): the in-process
+    # request carries this process's internal token, which never leaves it.
+    headers["authorization"] = f"Bearer {request.app.state.internal_token}"
     transport = httpx.ASGITransport(app=request.app)
     async with httpx.AsyncClient(transport=transport, base_url="http://spacearm.internal", timeout=600) as client:
         return await client.post(path, json=body, headers=headers)
@@ -225,33 +273,56 @@ def _problem_text(response: httpx.Response) -> str:
 
 
 @router.get("/login", response_class=HTMLResponse)
-def login_page(next: str = "/") -> HTMLResponse:
-    return page("login.html", next=_local(next))
+def login_page(request: Request, next: str = "/") -> HTMLResponse:
+    return page("login.html", request=request, next=_local(next))
 
 
 @router.post("/login")
 async def login(request: Request) -> Response:
-    """Check a key and keep it in an HttpOnly, SameSite=Strict cookie for the pages."""
+    """Check a key and open a session (:mod:`service.sessions`): the cookie holds the session's
+    random token (HttpOnly, SameSite=Strict, Secure when configured), never the key."""
     form = await _form(request)
-    key = form.get("key", "").strip()
     target = _local(form.get("next", "/"))
-    keys = [k.encode() for k in request.app.state.settings.keys()]  # noqa: SIM118
-    valid = False
-    for known in keys:  # every key compared, in constant time
-        valid |= hmac.compare_digest(key.encode(), known)
+    try:
+        check_form(request, form)
+    except FormRejectedError as error:
+        return rejected(request, error)
+    key = form.get("key", "").strip()
+    settings = request.app.state.settings
+    keys = settings.keys()
     if not keys:
         return RedirectResponse(target, status_code=303)  # authentication is off
+    valid = False
+    for known in keys:  # every key compared, in constant time
+        valid |= hmac.compare_digest(key.encode(), known.encode())
     if not valid:
-        return page("login.html", 401, next=target, error="that key is not valid")
+        return page("login.html", 401, request=request, next=target, error="that key is not valid")
+    token, _ = await run_in_threadpool(open_session, get_db(request), key, settings.session_hours)
     response = RedirectResponse(target, status_code=303)
-    response.set_cookie(KEY_COOKIE, key, httponly=True, samesite="strict", path="/")
+    max_age = int(settings.session_hours * 3600)
+    response.set_cookie(
+        SESSION_COOKIE, token, httponly=True, samesite="strict", secure=settings.cookie_secure, path="/", max_age=max_age
+    )
+    response.delete_cookie(CSRF_COOKIE, path="/")
     return response
 
 
-@router.get("/logout")
-def logout() -> Response:
+@router.get("/logout", response_class=HTMLResponse)
+def logout_page(request: Request) -> HTMLResponse:
+    return page("logout.html", request=request)
+
+
+@router.post("/logout")
+async def logout(request: Request) -> Response:
+    """End the session: its row is deleted, so the cookie no longer opens anything anywhere."""
+    form = await _form(request)
+    try:
+        check_form(request, form)
+    except FormRejectedError as error:
+        return rejected(request, error)
+    await run_in_threadpool(close_session, get_db(request), request.cookies.get(SESSION_COOKIE, ""))
     response = RedirectResponse("/login", status_code=303)
-    response.delete_cookie(KEY_COOKIE, path="/")
+    response.delete_cookie(SESSION_COOKIE, path="/")
     return response
 
 
@@ -263,16 +334,24 @@ def _local(target: str) -> str:
 @router.post("/web/plans")
 async def submit_plan(request: Request) -> Response:
     form = await _form(request)
+    try:
+        check_form(request, form)
+    except FormRejectedError as error:
+        return rejected(request, error)
     response = await _forward(request, "/v1/plans", _plan_body(form))
     if response.status_code == 201:
         return RedirectResponse(f"/plans/{response.json()['id']}", status_code=303)
     context = index_context(request)
-    return page("index.html", response.status_code, form=form, form_error=_problem_text(response), **context)
+    return page("index.html", response.status_code, request=request, form=form, form_error=_problem_text(response), **context)
 
 
 @router.post("/web/tuning-jobs")
 async def submit_job(request: Request) -> Response:
     form = await _form(request)
+    try:
+        check_form(request, form)
+    except FormRejectedError as error:
+        return rejected(request, error)
     preset = PRESETS.get(form.get("preset", "paper-line"), PRESETS["paper-line"])
     population = _float(form, "population", 8.0)
     generations = _float(form, "generations", 5.0)
@@ -291,4 +370,4 @@ async def submit_job(request: Request) -> Response:
     if response.status_code in (200, 201, 202):
         return RedirectResponse(f"/jobs/{response.json()['id']}", status_code=303)
     context = index_context(request)
-    return page("index.html", response.status_code, form={}, job_form_error=_problem_text(response), **context)
+    return page("index.html", response.status_code, request=request, form={}, job_form_error=_problem_text(response), **context)

@@ -3,6 +3,8 @@ and crash safety, over real HTTP against uvicorn and worker subprocesses."""
 
 from __future__ import annotations
 
+import hashlib
+import re
 import signal
 import sqlite3
 import threading
@@ -215,36 +217,85 @@ def test_job_failing_on_every_attempt_ends_failed(make_stack: Callable[..., Stac
         assert r.status_code == 409 and "attempts" in r.json()["detail"]
 
 
-def test_web_pages_need_the_sign_in_cookie_when_keys_are_on(make_stack: Callable[..., Stack]) -> None:
+def _csrf(page: httpx.Response) -> str:
+    match = re.search(r'name="csrf_token" value="([^"]+)"', page.text)
+    assert match, "the page's forms carry a CSRF token"
+    return match.group(1)
+
+
+def test_web_sessions_csrf_and_page_headers_when_keys_are_on(make_stack: Callable[..., Stack]) -> None:
     stack = make_stack()
     stack.env["SPACEARM_API_KEYS"] = ",".join(KEYS)
     stack.start_api()
     auth = {"Authorization": f"Bearer {KEYS[0]}"}
     with stack.client() as client:
         plan = client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK, "replay": False}, headers=auth).json()
-        # Pages read the database directly: without a key they send the browser to sign in.
+        # Pages read the database directly: without a session they send the browser to sign in.
         for path in ("/", f"/plans/{plan['id']}"):
             r = client.get(path, follow_redirects=False)
             assert r.status_code == 303 and r.headers["location"].startswith("/login"), path
-        assert client.get("/login").status_code == 200
-        bad = client.post("/login", data={"key": "nope", "next": "/"}, follow_redirects=False)
-        assert bad.status_code == 401 and "spacearm_key" not in bad.headers.get("set-cookie", "")
-        ok = client.post("/login", data={"key": KEYS[1], "next": "https://evil.example/"}, follow_redirects=False)
+        login_page = client.get("/login")
+        assert login_page.status_code == 200
+        assert "default-src 'self'" in login_page.headers["content-security-policy"]
+        assert "'unsafe-inline'" not in login_page.headers["content-security-policy"]
+        assert login_page.headers["x-frame-options"] == "DENY" and login_page.headers["x-content-type-options"] == "nosniff"
+        assert login_page.headers["referrer-policy"] == "same-origin"
+        token = _csrf(login_page)
+        assert client.cookies.get("spacearm_csrf") == token  # double-submitted before a session exists
+        # Login CSRF: a form without the token, or from another site, is refused.
+        assert client.post("/login", data={"key": KEYS[1], "next": "/"}, follow_redirects=False).status_code == 403
+        evil = {"origin": "https://evil.example"}
+        forged = client.post("/login", data={"key": KEYS[1], "csrf_token": token}, headers=evil, follow_redirects=False)
+        assert forged.status_code == 403
+        bad = client.post("/login", data={"key": "nope", "next": "/", "csrf_token": token}, follow_redirects=False)
+        assert bad.status_code == 401 and "spacearm_session" not in bad.headers.get("set-cookie", "")
+        ok = client.post(
+            "/login", data={"key": KEYS[1], "next": "https://evil.example/", "csrf_token": token}, follow_redirects=False
+        )
         assert ok.status_code == 303 and ok.headers["location"] == "/"  # no open redirect
         cookie = ok.headers["set-cookie"]
-        assert "httponly" in cookie.lower() and "samesite=strict" in cookie.lower()
-        assert client.cookies.get("spacearm_key") == KEYS[1]  # the client keeps it, like a browser
+        assert "httponly" in cookie.lower() and "samesite=strict" in cookie.lower() and "secure" not in cookie.lower()
+        session = client.cookies.get("spacearm_session")
+        assert session and KEYS[1] not in cookie  # a random session id, never the key
+        with sqlite3.connect(stack.db_path) as con:
+            stored = [row[0] for row in con.execute("SELECT id FROM web_sessions")]
+        assert stored == [hashlib.sha256(session.encode()).hexdigest()]  # only its hash is stored
+        index = client.get("/")
+        assert index.status_code == 200 and index.headers["x-frame-options"] == "DENY"
         assert client.get(f"/plans/{plan['id']}").status_code == 200
-        # The cookie opens reads under /v1 (figures, job polling) but not writes.
+        # The session opens reads under /v1 (figures, job progress) but not writes.
         assert client.get(f"/v1/plans/{plan['id']}/figures/joint-angles").status_code == 200
-        write = client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK})
-        assert write.status_code == 401
-        # The page's own form turns the cookie into the key when it forwards to the API.
+        assert client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK}).status_code == 401
+        # The page's own form is forwarded to the API once its CSRF token checks out.
         form = {"preset": "paper-line", "method": "dls", "dls.lambda": "0.05"}
-        submitted = client.post("/web/plans", data=form, follow_redirects=False)
+        assert client.post("/web/plans", data=form, follow_redirects=False).status_code == 403
+        assert client.post("/web/plans", data={**form, "csrf_token": "x" * 43}, follow_redirects=False).status_code == 403
+        form["csrf_token"] = _csrf(index)
+        cross = client.post("/web/plans", data=form, headers={"referer": "https://evil.example/page"}, follow_redirects=False)
+        assert cross.status_code == 403
+        sandboxed = client.post("/web/plans", data=form, headers={"origin": "null"}, follow_redirects=False)
+        assert sandboxed.status_code == 403  # an opaque origin (sandboxed frame, file:) is another site
+        submitted = client.post("/web/plans", data=form, headers={"origin": stack.url}, follow_redirects=False)
         assert submitted.status_code == 303 and submitted.headers["location"].startswith("/plans/")
-        client.cookies.clear()
-        assert client.post("/web/plans", data=form, follow_redirects=False).status_code == 401
-        client.cookies.set("spacearm_key", "wrong")
-        assert client.get("/v1/plans").status_code == 401
+        # Sign out revokes the session server-side: the same cookie opens nothing afterwards.
+        out_token = _csrf(client.get("/logout"))
+        assert client.post("/logout", data={"csrf_token": out_token}, follow_redirects=False).status_code == 303
+        client.cookies.set("spacearm_session", session)
         assert client.get("/", follow_redirects=False).status_code == 303
+        assert client.get("/v1/plans").status_code == 401
+        with sqlite3.connect(stack.db_path) as con:
+            assert con.execute("SELECT count(*) FROM web_sessions").fetchone() == (0,)
+    # A session ends when its key is removed from the configuration; cookies are Secure on request.
+    with stack.client() as client:
+        token = _csrf(client.get("/login"))
+        assert client.post("/login", data={"key": KEYS[1], "csrf_token": token}, follow_redirects=False).status_code == 303
+        session = client.cookies.get("spacearm_session")
+    stack.stop_api()
+    stack.env["SPACEARM_API_KEYS"] = KEYS[0]
+    stack.env["SPACEARM_COOKIE_SECURE"] = "true"
+    stack.start_api()
+    with stack.client() as client:
+        client.cookies.set("spacearm_session", session or "")
+        assert client.get("/", follow_redirects=False).status_code == 303
+        # (over plain HTTP a client does not send Secure cookies back: here only their flags are checked)
+        assert "secure" in client.get("/login").headers["set-cookie"].lower()

@@ -1,18 +1,36 @@
-"""The schema comes from Alembic: upgrade from empty to head, down to base and up again."""
+"""The schema comes from Alembic: upgrade from empty to head, down to base and up again; the
+data migration of 0002 both ways; migrations are atomic (a migrate killed at random moments
+leaves a database that the next migrate brings to exactly the clean schema); half-migrated
+legacy databases are repaired or refused with a message."""
 
 from __future__ import annotations
 
+import json
+import os
+import random
+import signal
+import sqlite3
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import numpy as np
+import pytest
 from sqlalchemy import inspect, text
 
 from service.db import make_engine
-from service.migrate import current_revision, downgrade, head_revision, upgrade
+from service.migrate import MigrationError, current_revision, downgrade, head_revision, upgrade
+from service.storage import unpack_trajectory
 
 ROOT = Path(__file__).resolve().parents[2]
-TABLES = {"robots", "plans", "tuning_jobs"}
+TABLES = {"robots", "plans", "tuning_jobs", "web_sessions", "service_probes"}
+
+
+def _schema(path: Path) -> list[tuple[str, ...]]:
+    with sqlite3.connect(path) as con:
+        rows = con.execute("SELECT type, name, tbl_name, sql FROM sqlite_master WHERE name NOT LIKE 'sqlite_%' ORDER BY name")
+        return [tuple(str(v) for v in row) for row in rows]
 
 
 def test_upgrade_downgrade_roundtrip(tmp_path: Path) -> None:
@@ -21,9 +39,11 @@ def test_upgrade_downgrade_roundtrip(tmp_path: Path) -> None:
     engine = make_engine(url)
     try:
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == head_revision(url) == "0001"
+        assert current_revision(engine) == head_revision(url) == "0002"
         columns = {c["name"] for c in inspect(engine).get_columns("tuning_jobs")}
         assert {"status", "lease_owner", "lease_expires_at", "attempts", "progress", "result", "idempotency_key"} <= columns
+        assert "idempotency_fingerprint" in columns
+        assert {c["name"] for c in inspect(engine).get_columns("plans")} >= {"trajectory_data"}
         with engine.connect() as conn:
             assert conn.execute(text("PRAGMA journal_mode")).scalar() == "wal"
             assert conn.execute(text("PRAGMA busy_timeout")).scalar() > 0
@@ -35,6 +55,104 @@ def test_upgrade_downgrade_roundtrip(tmp_path: Path) -> None:
         assert set(inspect(engine).get_table_names()) >= TABLES
     finally:
         engine.dispose()
+
+
+def test_0002_converts_stored_trajectories_both_ways(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'data.db'}"
+    upgrade(url, "0001")
+    trajectory = {
+        "t_s": [0.0, 0.25, 0.5],
+        "det_gjm": [None, 1.5, -2.0],
+        "joint_angles_deg": [[1.0, None], [2.0, 3.0], [4.0, 5.0]],
+    }
+    with sqlite3.connect(tmp_path / "data.db") as con:
+        con.execute("INSERT INTO robots (id, name, parameters, preset, created_at) VALUES ('r', 'r', '{}', 0, '2026-01-01')")
+        con.execute(
+            "INSERT INTO plans (id, robot_id, request, method, success, message, metrics, trajectory, replay, elapsed_s, "
+            "created_at) VALUES ('p', 'r', '{}', '{}', 1, 'ok', '{}', ?, NULL, 0.1, '2026-01-01')",
+            (json.dumps(trajectory),),
+        )
+    upgrade(url)
+    with sqlite3.connect(tmp_path / "data.db") as con:
+        (blob,) = con.execute("SELECT trajectory_data FROM plans WHERE id = 'p'").fetchone()
+    arrays = unpack_trajectory(blob)
+    np.testing.assert_array_equal(arrays["t_s"], [0.0, 0.25, 0.5])
+    np.testing.assert_array_equal(arrays["det_gjm"], [np.nan, 1.5, -2.0])
+    np.testing.assert_array_equal(arrays["joint_angles_deg"], [[1.0, np.nan], [2.0, 3.0], [4.0, 5.0]])
+    downgrade(url, "0001")
+    with sqlite3.connect(tmp_path / "data.db") as con:
+        (stored,) = con.execute("SELECT trajectory FROM plans WHERE id = 'p'").fetchone()
+    assert json.loads(stored) == trajectory
+
+
+def test_migrate_killed_at_random_moments_never_leaves_a_broken_database(tmp_path: Path) -> None:
+    """30 kills: mostly in the window where the DDL runs (just after the file appears), some at
+    any moment of the process. Each time, the next migrate succeeds and the schema is exactly
+    the clean one."""
+    clean = tmp_path / "clean.db"
+    upgrade(f"sqlite:///{clean}")
+    expected = _schema(clean)
+    rng = random.Random(20261122)
+    outcomes = {"killed before the file": 0, "killed during or after the DDL": 0, "finished": 0}
+    for trial in range(30):
+        path = tmp_path / f"kill{trial}.db"
+        url = f"sqlite:///{path}"
+        env = {**os.environ, "SPACEARM_DATABASE_URL": url}
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "service", "migrate"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        start = time.monotonic()
+        if trial % 5 == 4:
+            time.sleep(rng.uniform(0.0, 1.2))  # anywhere in the process's life
+        else:
+            while not path.exists() and proc.poll() is None and time.monotonic() - start < 30:
+                time.sleep(0.0005)
+            time.sleep(rng.uniform(0.0, 0.15))  # in the DDL window
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGKILL)
+            outcomes["killed during or after the DDL" if path.exists() else "killed before the file"] += 1
+        else:
+            outcomes["finished"] += 1
+        proc.wait(30)
+        # all or nothing: the old schema (none) or the new one, never a part of it
+        left = _schema(path) if path.exists() else []
+        assert left in ([], expected), f"trial {trial}: the kill left {len(left)} schema objects"
+        upgrade(url)  # must succeed whatever state the kill left
+        assert _schema(path) == expected, f"trial {trial}"
+        with sqlite3.connect(path) as con:
+            assert con.execute("SELECT version_num FROM alembic_version").fetchall() == [("0002",)]
+    assert outcomes["killed during or after the DDL"] >= 15, outcomes
+
+
+def test_half_migrated_legacy_database_is_repaired_or_refused(tmp_path: Path) -> None:
+    """What the earlier, non-transactional migrate could leave: tables but no version."""
+    empty = tmp_path / "half.db"
+    with sqlite3.connect(empty) as con:
+        con.execute("CREATE TABLE robots (id VARCHAR(64) PRIMARY KEY, name VARCHAR(200) NOT NULL)")
+    upgrade(f"sqlite:///{empty}")  # spacearm's table, empty: dropped and created again
+    assert "parameters" in {row[1] for row in sqlite3.connect(empty).execute("PRAGMA table_info(robots)")}
+
+    holding = tmp_path / "holding.db"
+    with sqlite3.connect(holding) as con:
+        con.execute("CREATE TABLE robots (id VARCHAR(64) PRIMARY KEY, name VARCHAR(200) NOT NULL)")
+        con.execute("INSERT INTO robots VALUES ('mine', 'precious')")
+    with pytest.raises(MigrationError, match=r"holding data \(robots \(1 rows\)\).*alembic -c alembic.ini stamp"):
+        upgrade(f"sqlite:///{holding}")
+    assert sqlite3.connect(holding).execute("SELECT name FROM robots").fetchall() == [("precious",)]  # untouched
+
+    foreign = tmp_path / "foreign.db"
+    with sqlite3.connect(foreign) as con:
+        con.execute("CREATE TABLE invoices (id INTEGER)")
+    with pytest.raises(MigrationError, match="not spacearm's"):
+        upgrade(f"sqlite:///{foreign}")
+    out = subprocess.run(
+        [sys.executable, "-m", "service", "migrate"],
+        cwd=ROOT,
+        env={**os.environ, "SPACEARM_DATABASE_URL": f"sqlite:///{foreign}"},
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 1 and "spacearm migrate: the database has tables that are not spacearm's (invoices)" in out.stderr
 
 
 def test_cli_migrate_seeds_preset_and_alembic_ini_works(tmp_path: Path) -> None:
@@ -54,4 +172,4 @@ def test_cli_migrate_seeds_preset_and_alembic_ini_works(tmp_path: Path) -> None:
         text=True,
     )
     assert out.returncode == 0, out.stderr
-    assert "0001" in out.stdout
+    assert "0002" in out.stdout

@@ -28,13 +28,13 @@ def test_pg_upgrade_downgrade_roundtrip(pg_url: str) -> None:  # noqa: F811
     try:
         assert engine.dialect.name == "postgresql"
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == head_revision(pg_url) == "0001"
+        assert current_revision(engine) == head_revision(pg_url) == "0002"
         downgrade(pg_url)
         assert not TABLES & set(inspect(engine).get_table_names())
         assert current_revision(engine) is None
         upgrade(pg_url)
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == "0001"
+        assert current_revision(engine) == "0002"
     finally:
         engine.dispose()
 
@@ -44,7 +44,7 @@ def test_pg_api_and_two_workers(make_stack: Callable[..., Stack], pg_url: str) -
     stack.start_api()
     with stack.client() as client:
         ready = client.get("/readyz")
-        assert ready.status_code == 200 and ready.json()["revision"] == "0001", ready.text
+        assert ready.status_code == 200 and ready.json()["revision"] == "0002", ready.text
         r = client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK, "replay": False})
         assert r.status_code == 201, r.text
         plan = r.json()
@@ -54,7 +54,7 @@ def test_pg_api_and_two_workers(make_stack: Callable[..., Stack], pg_url: str) -
         # PostgreSQL cannot store NUL characters (SQLite can): a 422, not a 500
         robot = client.get("/v1/robots/table1").json()["parameters"]
         nul = client.post("/v1/robots", json={**robot, "name": "a\x00b"})
-        assert nul.status_code == 422 and nul.json()["errors"][0]["field"] == "body", nul.text
+        assert nul.status_code == 422 and nul.json()["errors"][0]["field"] == "body.name", nul.text
         assert client.get("/v1/robots/a%00b").status_code == 422
         headers = {"Idempotency-Key": "pg-1"}
         first = client.post("/v1/tuning-jobs", json={**PAPER_JOB}, headers=headers).json()

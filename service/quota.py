@@ -1,0 +1,43 @@
+"""The storage quota: new plans, jobs and robots are refused with 507 once the database holds
+``SPACEARM_STORAGE_QUOTA_BYTES`` (SQLite: the pages in use, so deleted data frees room; PostgreSQL:
+``pg_database_size``)."""
+
+from __future__ import annotations
+
+from sqlalchemy import text
+from sqlalchemy.orm import Session
+
+from service.errors import ApiError
+
+MIB = 2**20
+
+
+class QuotaExceededError(ApiError):
+    def __init__(self, used: int, incoming: int, quota: int) -> None:
+        super().__init__(
+            507,
+            f"the storage quota of {quota / MIB:.1f} MiB would be exceeded ({used / MIB:.1f} MiB in use, "
+            f"{incoming / MIB:.2f} MiB more): delete plans or jobs you no longer need, or raise "
+            "SPACEARM_STORAGE_QUOTA_BYTES",
+            used_bytes=used,
+            quota_bytes=quota,
+        )
+
+
+def database_bytes(session: Session) -> int:
+    """Bytes the database holds."""
+    if session.get_bind().dialect.name == "sqlite":
+        pages = session.execute(text("PRAGMA page_count")).scalar() or 0
+        free = session.execute(text("PRAGMA freelist_count")).scalar() or 0
+        size = session.execute(text("PRAGMA page_size")).scalar() or 0
+        return int((pages - free) * size)
+    return int(session.execute(text("SELECT pg_database_size(current_database())")).scalar() or 0)
+
+
+def check_quota(session: Session, quota: int | None, incoming: int) -> None:
+    """Raise :class:`QuotaExceededError` if storing ``incoming`` more bytes would exceed ``quota``."""
+    if quota is None:
+        return
+    used = database_bytes(session)
+    if used + incoming > quota:
+        raise QuotaExceededError(used, incoming, quota)
