@@ -15,7 +15,7 @@ from sqlalchemy import select
 from service import figures
 from service.deps import SessionDep
 from service.errors import ApiError, ApiValidationError, NotFoundError, responses
-from service.models import Plan, TuningJob
+from service.models import Plan, Robot, TuningJob
 
 router = APIRouter(tags=["figures"])
 
@@ -55,8 +55,25 @@ def _image(request: Request, content: bytes, fmt: str, hit: bool, immutable: boo
     return Response(content, media_type=figures.FORMATS[fmt], headers=headers)
 
 
-def plan_dict(p: Plan) -> dict[str, Any]:
-    return {"id": p.id, "method": p.method, "metrics": p.metrics, "request": p.request, "trajectory": p.trajectory}
+def plan_dict(p: Plan, robot: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A stored plan as the figures read it; ``robot`` the robot's parameters (to draw the arm)."""
+    return {
+        "id": p.id,
+        "method": p.method,
+        "metrics": p.metrics,
+        "request": p.request,
+        "trajectory": p.trajectory,
+        "robot": robot,
+    }
+
+
+def robot_parameters(session: SessionDep, p: Plan) -> dict[str, Any] | None:
+    """The parameters of the robot a plan was made for: the stored robot, or the request's inline one."""
+    if p.robot_id is not None:
+        robot = session.get(Robot, p.robot_id)
+        return dict(robot.parameters) if robot is not None else None
+    inline = (p.request or {}).get("robot")
+    return dict(inline) if isinstance(inline, dict) else None
 
 
 @router.get(
@@ -99,7 +116,7 @@ def compare_plans_figure(
 @router.get(
     "/v1/plans/{plan_id}/figures/{name}",
     operation_id="get_plan_figure",
-    summary="A figure of a stored plan (the paper's Figs. 4 to 11)",
+    summary="A figure of a stored plan (the paper's Figs. 4 to 11; `scene-3d` is Fig. 10's 3D view)",
     description="Names: "
     + ", ".join(f"`{n}`" for n in figures.PLAN_FIGURES)
     + ". Axes carry units; the singular region (smallest singular value below the plan's epsilon, "
@@ -116,7 +133,7 @@ def get_plan_figure(plan_id: str, name: str, request: Request, session: SessionD
         row = session.get(Plan, plan_id)
         if row is None:
             raise NotFoundError("plan", plan_id)
-        return plan_dict(row)
+        return plan_dict(row, robot_parameters(session, row))
 
     content, hit = figures.cached(
         ("plan", plan_id, name, format), lambda: figures.render_plan_figure(figures.plan_data(plan_id, load), name, format)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import Annotated, Any
 
 import numpy as np
@@ -18,7 +19,7 @@ from fastapi import APIRouter, Query, Response, status
 from sqlalchemy import Text, cast, func, select
 from sqlalchemy.orm import Session
 
-from engine import PlanResult, make_inverse, plan, replay
+from engine import PlanResult, RobotModel, make_inverse, plan, replay
 from engine.errors import ParameterError
 from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
@@ -148,9 +149,12 @@ def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tup
     robot_id, model = resolve_robot(session, body.robot_id, body.robot)
     task = build_task(model, body.task)
     inverse = check_method(body.method.name, body.method.params)
-    try:
-        start = time.perf_counter()
-        result = plan(
+    return finish_plan(
+        body,
+        robot_id,
+        model,
+        settings,
+        lambda: plan(
             model,
             task,
             inverse,
@@ -158,7 +162,18 @@ def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tup
             weights=(body.weights[0], body.weights[1]),
             aggregation=body.aggregation,
             attitude_term=body.attitude_term,
-        )
+        ),
+    )
+
+
+def finish_plan(
+    body: PlanRequest, robot_id: str | None, model: RobotModel, settings: Settings, make: Callable[[], PlanResult]
+) -> tuple[Plan, dict[str, np.ndarray]]:
+    """Run ``make`` (the engine's plan of ``body``), replay it if asked: the row to store and the
+    trajectory arrays; engine errors are 422s naming the field."""
+    try:
+        start = time.perf_counter()
+        result = make()
         skipped = replay_skip_reason(result, settings.max_replay_steps) if body.replay else None
         checked = replay(model, result) if body.replay and skipped is None else None
         elapsed = time.perf_counter() - start
