@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from engine import CartesianTask, make_inverse, paper_task, plan, table1_robot
-from service import figures
+from service import figures, jsonio
 from service.convert import metrics_out, trajectory_out
 
 DURATION_S, DT_S = 500.0, 0.025
@@ -44,8 +44,9 @@ def main() -> None:
         "metrics": metrics_out(result.metrics),
         "request": {},
         "trajectory": trajectory_out(result),
+        "robot": robot.to_dict(),  # the arm of the 3D view
     }
-    text = json.dumps(stored)
+    text = jsonio.dumps_text(stored)
     start = time.perf_counter()
     data = figures.PlanData(json.loads(text))
     print(f"stored JSON: {len(text) / 1e6:.1f} MB, decoded to arrays in {time.perf_counter() - start:.3f} s")

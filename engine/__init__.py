@@ -1,5 +1,6 @@
 """Numerical core: free-floating space robot kinematics, the generalized Jacobian,
-singularity-robust inverses, the Cartesian planner, replay and GA tuning.
+singularity-robust inverses, path types, the Cartesian planner, the shortest feasible duration,
+replay and GA tuning.
 
 numpy and scipy, numba for the compiled kernels (:mod:`engine.kernels`), DEAP for the GA; no web
 or database code. SI units and radians throughout.
@@ -22,26 +23,34 @@ from engine.jacobian import GJMResult, generalized_jacobian
 from engine.kinematics import ForwardKinematics, State, forward_kinematics
 from engine.metrics import BatchMetrics, Metrics
 from engine.model import RobotModel, table1_robot
+from engine.paths import PATH_TYPES, ArcPath, LinePath, Path, RasterPath, WaypointPath, make_path
 from engine.planner import BatchResult, PlanResult, plan, plan_batch
 from engine.replay import ReplayResult, replay
+from engine.shortest import DurationSearch, shortest_duration
 from engine.trajectory import CartesianTask, paper_task
 from engine.tuning import Comparison, TuneProgress, TuneResult, compare, tune
 from engine.warmup import warm_up
 
 __all__ = [
     "METHODS",
+    "PATH_TYPES",
     "AdaptiveDamping",
+    "ArcPath",
     "BatchMetrics",
     "BatchResult",
     "CartesianTask",
     "Comparison",
     "DampedLeastSquares",
+    "DurationSearch",
     "ForwardKinematics",
     "GJMResult",
     "InverseStep",
+    "LinePath",
     "Metrics",
+    "Path",
     "PlainInverse",
     "PlanResult",
+    "RasterPath",
     "ReplayResult",
     "RobotModel",
     "RobustInverse",
@@ -50,16 +59,19 @@ __all__ = [
     "State",
     "TuneProgress",
     "TuneResult",
+    "WaypointPath",
     "WeightedDLS",
     "compare",
     "forward_kinematics",
     "generalized_jacobian",
     "make_inverse",
+    "make_path",
     "method_names",
     "paper_task",
     "plan",
     "plan_batch",
     "replay",
+    "shortest_duration",
     "table1_robot",
     "tune",
     "warm_up",

@@ -28,7 +28,7 @@ from engine.inverses import RobustInverse, inverse_params, kernel_param_rows, ma
 from engine.kernels import plan as plan_kernels
 from engine.metrics import BatchMetrics, Metrics, Objective, batch_metrics
 from engine.model import RobotModel
-from engine.spatial import FloatArray
+from engine.spatial import FloatArray, matrix_to_quaternion
 from engine.trajectory import CartesianTask
 
 #: Default tolerances on the final pose for a plan to count as reaching its target. Loose on
@@ -118,6 +118,12 @@ def _verdict(metrics: Metrics, position_tolerance: float, attitude_tolerance: fl
                 f"{math.degrees(metrics.attitude_error_final):.3g} deg exceed the tolerances "
                 f"{position_tolerance:g} m and {math.degrees(attitude_tolerance):.3g} deg"
             )
+        elif metrics.position_error_max > position_tolerance or metrics.attitude_error_max > attitude_tolerance:
+            problems.append(
+                f"path not tracked: errors up to {metrics.position_error_max:.4g} m and "
+                f"{math.degrees(metrics.attitude_error_max):.3g} deg exceed the tolerances "
+                f"{position_tolerance:g} m and {math.degrees(attitude_tolerance):.3g} deg"
+            )
         if not metrics.joint_speed_limit_respected:
             problems.append(
                 f"joint speed limit broken: {metrics.max_joint_speed_deg_s:.4g} deg/s on joint "
@@ -126,6 +132,38 @@ def _verdict(metrics: Metrics, position_tolerance: float, attitude_tolerance: fl
     if problems:
         return False, "; ".join(problems)
     return True, "ok"
+
+
+def _where(
+    result_t: FloatArray,
+    position_error: FloatArray,
+    attitude_error: FloatArray,
+    qd: FloatArray,
+    p_des: FloatArray,
+    A_des: FloatArray,
+    joint_speed_limit: float,
+    position_tolerance: float,
+    attitude_tolerance: float,
+) -> str:
+    """Where a failed plan first went wrong: the first sample that is not finite, off the path
+    by more than the tolerances or over the joint speed limit, with the desired pose there."""
+    speed = np.max(np.abs(qd), axis=1)
+    bad = ~((position_error <= position_tolerance) & (attitude_error <= attitude_tolerance) & (speed <= joint_speed_limit))
+    if not np.any(bad):
+        return ""
+    k = int(np.argmax(bad))
+    if not (np.isfinite(position_error[k]) and np.isfinite(speed[k])):
+        what = "the plan stopped"
+    elif speed[k] > joint_speed_limit:
+        what = f"a joint reached {math.degrees(speed[k]):.4g} deg/s"
+    else:
+        what = f"the errors reached {position_error[k]:.4g} m and {math.degrees(attitude_error[k]):.3g} deg"
+    position = ", ".join(f"{x:.4g}" for x in p_des[k])
+    quaternion = ", ".join(f"{x:.4g}" for x in matrix_to_quaternion(A_des[k]))
+    return (
+        f"first failed at t = {result_t[k]:g} s ({what}), desired pose: position [{position}] m, "
+        f"attitude quaternion [w, x, y, z] [{quaternion}]"
+    )
 
 
 @dataclass(frozen=True)
@@ -186,6 +224,19 @@ def plan(
     metrics = batch_metrics(raw, task.joint_speed_limit, objective).item(0)
     success, message = _verdict(metrics, position_tolerance, attitude_tolerance)
     q, qd, base_p, base_A, ee_p, ee_A, sv, det, damping, pos_err, att_err = trace
+    if not success:
+        where = _where(
+            samples.t,
+            pos_err,
+            att_err,
+            qd,
+            samples.p_des,
+            samples.A_des,
+            task.joint_speed_limit,
+            position_tolerance,
+            attitude_tolerance,
+        )
+        message = f"{message}; {where}" if where else message
     return PlanResult(
         method=inverse.name,
         params=inverse_params(inverse),
@@ -326,3 +377,46 @@ def plan_batch(
     inverse = make_inverse(method, **columns)
     raw = evaluate(model, task, inverse, total, feedback_gain=feedback_gain, threads=threads, batch_size=batch_size, stop=stop)
     return BatchResult(method=method, params=columns, metrics=batch_metrics(raw, task.joint_speed_limit, objective))
+
+
+def evaluate_tasks(
+    model: RobotModel,
+    tasks: Sequence[CartesianTask],
+    inverse: RobustInverse,
+    *,
+    feedback_gain: float = 0.0,
+    threads: int | None = None,
+) -> FloatArray:
+    """The kernel's metrics rows ``(len(tasks), N_METRICS)`` of one parameter set of
+    ``inverse`` on each task (for example one path at several durations), no traces kept, the
+    tasks spread over ``threads`` threads (default :func:`default_threads`)."""
+    params = kernel_param_rows(inverse, 1)
+    args = [_kernel_args(model, task, inverse, feedback_gain, params) for task in tasks]
+    out = np.empty((len(args), plan_kernels.N_METRICS))
+    workers = max(1, threads if threads is not None else default_threads())
+
+    def run(i: int) -> None:
+        plan_kernels.evaluate_range(*args[i], 0, 1, out[i : i + 1])
+
+    if workers == 1 or len(args) == 1:
+        for i in range(len(args)):
+            run(i)
+        return out
+    for f in [_pool(workers).submit(run, i) for i in range(len(args))]:
+        f.result()
+    return out
+
+
+def verdicts(
+    raw: FloatArray,
+    tasks: Sequence[CartesianTask],
+    objective: Objective,
+    position_tolerance: float = POSITION_TOLERANCE_M,
+    attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
+) -> list[tuple[Metrics, bool, str]]:
+    """Metrics, success and message of each row of :func:`evaluate_tasks`."""
+    out = []
+    for row, task in zip(raw, tasks, strict=True):
+        metrics = batch_metrics(row[None], task.joint_speed_limit, objective).item(0)
+        out.append((metrics, *_verdict(metrics, position_tolerance, attitude_tolerance)))
+    return out

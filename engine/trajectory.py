@@ -1,20 +1,28 @@
-"""Cartesian tasks: straight line in position, rotation about one fixed axis (paper eq. 2).
+"""Cartesian tasks: an initial configuration, a path to follow, a time step and a joint speed
+limit; sampled once into what the planner's kernels consume (:class:`PathSamples`).
 
-The path parameter ``s(t)`` runs from 0 to 1 with a trapezoidal (constant acceleration ramps)
-or quintic (``10 tau^3 - 15 tau^4 + 6 tau^5``) profile and holds 1 after ``duration``:
+By default (``path=None``) the path is the paper's straight line (eq. 2) from the start pose to
+the target pose, :class:`engine.paths.LinePath`: the path parameter ``s(t)`` runs from 0 to 1
+with a trapezoidal (constant acceleration ramps) or quintic (``10 tau^3 - 15 tau^4 + 6 tau^5``)
+profile and holds 1 after ``duration``:
 
 - ``p_d(t) = p_start + s(t) (p_target - p_start)``
 - ``A_d(t) = exp(s(t) [phi]x) A_start`` with ``exp([phi]x) = A_target A_start^T``
   (the axis ``r = phi / |phi|`` is fixed in world axes, angle ``|phi|``)
 - desired twist ``[v_e; w_e] = sdot(t) [p_target - p_start; phi]``.
+
+Any other :class:`engine.paths.Path` (waypoints, arc, raster) is given as ``path``
+(:meth:`CartesianTask.following` or :meth:`CartesianTask.along`); the start and target fields
+are then its end poses and ``duration`` its duration.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Literal, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -22,10 +30,27 @@ from numpy.typing import ArrayLike
 from engine.errors import ParameterError, finite_array
 from engine.kinematics import as_state, forward_kinematics
 from engine.model import RobotModel, table1_robot
-from engine.spatial import FloatArray, exp_so3, is_rotation, log_so3, rpy_spacedyn_to_matrix
+from engine.paths import PROFILES, LinePath, Path, Profile, make_path
+from engine.spatial import FloatArray, is_rotation, log_so3, rotation_angle, rpy_spacedyn_to_matrix
 
-Profile = Literal["trapezoidal", "quintic"]
-PROFILES: tuple[str, ...] = ("trapezoidal", "quintic")
+__all__ = [
+    "END_TOLERANCE",
+    "MAX_DURATION_S",
+    "MAX_STEPS",
+    "MIN_DT_S",
+    "PAPER_Q0_DEG",
+    "PAPER_TARGET_POSITION",
+    "PAPER_TARGET_RPY",
+    "PROFILES",
+    "CartesianTask",
+    "PathSamples",
+    "Profile",
+    "paper_task",
+    "start_pose",
+]
+
+#: Poses at the ends of a given path must match the task's start and target to this (m, rad).
+END_TOLERANCE = 1e-9
 MAX_DURATION_S = 600.0
 MAX_STEPS = 20_000
 MIN_DT_S = 1e-4  # 0.1 ms: finer steps add rounding, not accuracy
@@ -54,8 +79,13 @@ class PathSamples(NamedTuple):
 
 @dataclass(frozen=True)
 class CartesianTask:
-    """A point-to-point Cartesian task. SI units, rad; attitudes are rotation matrices
-    (end effector -> world). The base starts at rest at the origin with identity attitude."""
+    """A Cartesian task. SI units, rad; attitudes are rotation matrices (end effector -> world).
+    The base starts at rest at the origin with identity attitude.
+
+    Without ``path`` it is the point-to-point line from the start to the target pose in
+    ``duration`` (``ramp_time`` and ``profile`` its time law). With ``path``, the start and
+    target fields must be the path's end poses and ``duration`` its duration (use
+    :meth:`following`); ``ramp_time`` and ``profile`` are then not used."""
 
     q0: FloatArray  # (n,) rad
     start_position: FloatArray  # (3,) m
@@ -67,7 +97,9 @@ class CartesianTask:
     dt: float = 0.25  # s
     profile: Profile = "trapezoidal"
     joint_speed_limit: float = math.radians(6.0)  # rad/s, symmetric
+    path: Path | None = None
     _phi: FloatArray = field(init=False, repr=False, compare=False)
+    _path: Path = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         q0 = np.array(self.q0, dtype=float).reshape(-1)
@@ -91,15 +123,35 @@ class CartesianTask:
             raise ParameterError("duration", f"must be in (0, {MAX_DURATION_S:g}] s")
         if not MIN_DT_S <= self.dt <= 1.0:
             raise ParameterError("dt", f"must be in [{MIN_DT_S:g}, 1] s")
-        if not 0.0 <= self.ramp_time <= self.duration / 2.0:
-            raise ParameterError("ramp_time", "must be in [0, duration / 2]")
-        if self.profile not in PROFILES:
-            raise ParameterError("profile", f"must be one of {', '.join(PROFILES)}")
+        if self.path is None:
+            path: Path = LinePath(
+                self.start_position,
+                self.start_attitude,
+                self.target_position,
+                self.target_attitude,
+                self.duration,
+                self.ramp_time,
+                self.profile,
+            )
+        else:
+            path = self.path
+            self._check_path_ends(path)
         if self.joint_speed_limit <= 0.0:
             raise ParameterError("joint_speed_limit", "must be > 0")
         if self.n_steps > MAX_STEPS:
             raise ParameterError("dt", f"duration / dt gives {self.n_steps} steps, at most {MAX_STEPS} allowed")
         object.__setattr__(self, "_phi", log_so3(self.target_attitude @ self.start_attitude.T))
+        object.__setattr__(self, "_path", path)
+
+    def _check_path_ends(self, path: Path) -> None:
+        if abs(path.duration - self.duration) > END_TOLERANCE * max(1.0, self.duration):
+            raise ParameterError("duration", f"must be the path's duration ({path.duration:g} s); see with_duration")
+        ends = path.pose(np.array([0.0, path.duration]))
+        for i, (position, attitude) in enumerate((("start_position", "start_attitude"), ("target_position", "target_attitude"))):
+            if np.linalg.norm(ends[0][i] - getattr(self, position)) > END_TOLERANCE:
+                raise ParameterError(position, "must be the path's end position")
+            if rotation_angle(ends[1][i] @ getattr(self, attitude).T) > END_TOLERANCE:
+                raise ParameterError(attitude, "must be the path's end attitude")
 
     @classmethod
     def from_q0(
@@ -122,6 +174,54 @@ class CartesianTask:
             **options,  # type: ignore[arg-type]
         )
 
+    @classmethod
+    def following(cls, path: Path, q0: ArrayLike, **options: Any) -> CartesianTask:
+        """The task that follows ``path`` from ``q0`` (rad; the path must start at the
+        end-effector pose of ``q0``); ``options``: ``dt``, ``joint_speed_limit``."""
+        p, A = path.pose(np.array([0.0, path.duration]))
+        return cls(
+            q0=np.asarray(q0, dtype=float),
+            start_position=p[0],
+            start_attitude=A[0],
+            target_position=p[1],
+            target_attitude=A[1],
+            duration=path.duration,
+            ramp_time=0.0,
+            path=path,
+            **options,
+        )
+
+    @classmethod
+    def along(
+        cls,
+        model: RobotModel,
+        q0: ArrayLike,
+        kind: str,
+        *,
+        dt: float = 0.25,
+        joint_speed_limit: float = math.radians(6.0),
+        **spec: Any,
+    ) -> CartesianTask:
+        """The task of a path of type ``kind`` (:func:`engine.paths.make_path`, keyword
+        arguments ``spec``) starting at the forward kinematics of ``q0`` (rad, base at the
+        origin). A ``line`` is the classic task (``target_position``, ``target_attitude``,
+        ``duration``, ``ramp_time``, ``profile``)."""
+        options: dict[str, Any] = {"dt": dt, "joint_speed_limit": joint_speed_limit}
+        if kind == "line":
+            target_position, target_attitude = spec.pop("target_position"), spec.pop("target_attitude")
+            return cls.from_q0(model, q0, target_position, target_attitude, **options, **spec)
+        position, attitude = start_pose(model, q0)
+        return cls.following(make_path(kind, position, attitude, **spec), q0, **options)
+
+    def with_duration(self, duration: float) -> CartesianTask:
+        """The same task with its path retimed to ``duration`` s (every speed scaled; a line's
+        ramp time scales with it)."""
+        path = self._path.retimed(duration)
+        if self.path is None:  # the task's own line: its fields are the line's
+            assert isinstance(path, LinePath)
+            return dataclasses.replace(self, duration=path.duration, ramp_time=path.ramp_time)
+        return dataclasses.replace(self, path=path, duration=path.duration)
+
     @property
     def n_steps(self) -> int:
         """Number of integration steps; the last sample is at ``n_steps * dt >= duration``."""
@@ -136,45 +236,35 @@ class CartesianTask:
         """Sample times ``(n_steps + 1,)`` s."""
         return np.arange(self.n_steps + 1) * self.dt
 
+    @property
+    def followed(self) -> Path:
+        """The path the task follows (its line when no path was given)."""
+        return self._path
+
+    @property
+    def kind(self) -> str:
+        """The path type: ``line``, ``waypoints``, ``arc`` or ``raster``."""
+        return self._path.kind
+
     def path_parameter(self, times: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        """``(s, sdot)`` of the profile at ``times`` (s); ``s`` in [0, 1]; the ramp time is
+        """``(s, sdot)`` of a line's profile at ``times`` (s); ``s`` in [0, 1]; the ramp time is
         ignored by the quintic profile."""
-        t: FloatArray = np.clip(np.asarray(times, dtype=float), 0.0, self.duration)
-        T, ta = self.duration, self.ramp_time
-        if self.profile == "quintic":
-            tau = t / T
-            s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
-            sdot = 30.0 * tau**2 * (1.0 - tau) ** 2 / T
-            return s, sdot
-        v = 1.0 / (T - ta)
-        if ta == 0.0:
-            return t * v, np.full_like(t, v)
-        up = t < ta
-        down = t > T - ta
-        s = np.where(up, 0.5 * v * t**2 / ta, np.where(down, 1.0 - 0.5 * v * (T - t) ** 2 / ta, v * (t - 0.5 * ta)))
-        sdot = np.where(up, v * t / ta, np.where(down, v * (T - t) / ta, v))
-        return s, sdot
+        if not isinstance(self._path, LinePath):
+            raise ParameterError("path", f"a {self.kind} path has no single path parameter")
+        return self._path.path_parameter(times)
 
     def desired_pose(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """``(p_d (..., 3), A_d (..., 3, 3))`` at times ``t``."""
-        s, _ = self.path_parameter(t)
-        p = self.start_position + s[..., None] * (self.target_position - self.start_position)
-        A = exp_so3(s[..., None] * self._phi) @ self.start_attitude
-        return p, A
+        return self._path.pose(t)
 
     def desired_twist(self, t: ArrayLike) -> FloatArray:
         """Instantaneous desired twist ``[v_e; w_e] (..., 6)`` (m/s, rad/s) at times ``t``."""
-        _, sdot = self.path_parameter(t)
-        direction = np.concatenate([self.target_position - self.start_position, self._phi])
-        return sdot[..., None] * direction
+        return self._path.twist(t)
 
     def step_twists(self) -> FloatArray:
         """Commanded twist per sample ``(n_steps + 1, 6)``: the mean desired twist over
         ``[t_k, t_k + dt]`` (exact displacement of the path over the step); zero at the end."""
-        s, _ = self.path_parameter(self.times())
-        direction = np.concatenate([self.target_position - self.start_position, self._phi])
-        ds = np.append(np.diff(s), 0.0)
-        return (ds / self.dt)[:, None] * direction
+        return self._path.step_twists(self.times(), self.dt)
 
     @cached_property
     def samples(self) -> PathSamples:
@@ -198,7 +288,15 @@ class CartesianTask:
             "profile": self.profile,
             "joint_speed_limit": self.joint_speed_limit,
             "rotation_angle": float(np.linalg.norm(self._phi)),
+            "path": self._path.summary(),
         }
+
+
+def start_pose(model: RobotModel, q0: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """End-effector position (3,) m and attitude (3, 3) at ``q0`` (rad), base at the origin:
+    where every path starts."""
+    fk = forward_kinematics(model, as_state(model, q0))
+    return fk.ee_position, fk.ee_attitude
 
 
 def paper_task(model: RobotModel | None = None) -> CartesianTask:

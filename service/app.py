@@ -21,7 +21,7 @@ from service import errors, security
 from service.admission import Admission
 from service.db import Database
 from service.migrate import seed_presets
-from service.routers import figures, health, plans, robots, tasks, tuning, web
+from service.routers import figures, health, plans, robots, shortest, tasks, tuning, web
 from service.settings import Settings
 
 DESCRIPTION = """
@@ -147,7 +147,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.install(app)
     security.install(app, settings)
     errors.problem_openapi(app)
-    for module in (health, robots, tasks, plans, tuning, figures, web):
+    for module in (health, robots, tasks, plans, shortest, tuning, figures, web):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     return app

@@ -13,11 +13,13 @@ from sqlalchemy.orm import Session
 
 from engine import CartesianTask, Metrics, PlanResult, ReplayResult, RobotModel
 from engine.errors import ParameterError
+from engine.paths import SpeedLimits, make_path
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
+from engine.trajectory import MAX_DURATION_S, start_pose
 from service import jsonio
 from service.errors import ApiValidationError, NotFoundError
 from service.models import Robot
-from service.schemas import RobotParams, TaskIn
+from service.schemas import ArcPathIn, PathIn, RasterPathIn, RobotParams, TaskIn, WaypointsPathIn
 
 
 def clean(value: Any) -> Any:
@@ -90,39 +92,175 @@ def resolve_robot(session: Session, robot_id: str | None, inline: RobotParams | 
     return robot.id, robot_model(robot.parameters)
 
 
-def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("body", "task")) -> CartesianTask:
-    names = {
-        "q": "q0_deg",
-        "q0": "q0_deg",
-        "target_position": "target_position_m",
-        "target_attitude": "target_attitude_quaternion",
-        "duration": "duration_s",
-        "ramp_time": "ramp_time_s",
-        "dt": "dt_s",
-        "profile": "profile",
-        "joint_speed_limit": "joint_speed_limit_deg_s",
-    }
+#: Engine names of task fields -> API names (at the task's top level).
+TASK_FIELDS = {
+    "q": "q0_deg",
+    "q0": "q0_deg",
+    "target_position": "target_position_m",
+    "target_attitude": "target_attitude_quaternion",
+    "duration": "duration_s",
+    "ramp_time": "ramp_time_s",
+    "dt": "dt_s",
+    "profile": "profile",
+    "joint_speed_limit": "joint_speed_limit_deg_s",
+}
+#: Engine names of path fields -> API names (under ``path.<type>``).
+PATH_FIELDS = {
+    "position": "position_m",
+    "attitude_quaternion": "attitude_quaternion",
+    "segment_durations": "segment_durations_s",
+    "max_speed": "max_speed_m_s",
+    "max_angular_speed": "max_angular_speed_deg_s",
+    "max_acceleration": "max_acceleration_m_s2",
+    "max_angular_acceleration": "max_angular_acceleration_deg_s2",
+    "centre": "centre_m",
+    "angle": "angle_deg",
+    "via_position": "via_position_m",
+    "end_position": "end_position_m",
+    "corner": "corner_m",
+    "scan_edge": "scan_edge_m",
+    "step_edge": "step_edge_m",
+    "line_spacing": "line_spacing_m",
+    "standoff": "standoff_m",
+    "scan_speed": "scan_speed_m_s",
+    "scan_acceleration": "scan_acceleration_m_s2",
+    "turn_radius": "turn_radius_m",
+}
+DEFAULT_DURATION_S = 15.0
+
+
+def _invalid(loc: list[str | int], reason: str) -> ApiValidationError:
+    shown = loc[2:] if loc[:2] == ["body", "task"] else loc[1:] if loc[:1] == ["body"] else loc
+    where = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in shown).lstrip(".")
+    return ApiValidationError(f"invalid task: {where}: {reason}", [{"loc": loc, "msg": reason}])
+
+
+def _matrix(quaternion: list[float], loc: list[str | int]) -> np.ndarray:
     try:
-        attitude = quaternion_to_matrix(np.asarray(task.target_attitude_quaternion, dtype=float))
+        return quaternion_to_matrix(np.asarray(quaternion, dtype=float))
     except ValueError as exc:
-        path = [*loc, "target_attitude_quaternion"]
-        raise ApiValidationError(f"invalid task: target_attitude_quaternion: {exc}", [{"loc": path, "msg": str(exc)}]) from None
+        raise _invalid(loc, str(exc)) from None
+
+
+def path_spec(path: PathIn, task: TaskIn, loc: list[str | int]) -> dict[str, Any]:
+    """Keyword arguments of :func:`engine.paths.make_path` for a non-line path (SI units)."""
+
+    def limits(p: WaypointsPathIn | RasterPathIn) -> SpeedLimits:
+        return SpeedLimits(
+            p.max_speed_m_s,
+            math.radians(p.max_angular_speed_deg_s),
+            p.max_acceleration_m_s2,
+            math.radians(p.max_angular_acceleration_deg_s2),
+        )
+
+    if isinstance(path, WaypointsPathIn):
+        return {
+            "positions": np.array([w.position_m for w in path.waypoints], dtype=float),
+            "attitudes": np.array(
+                [
+                    _matrix(w.attitude_quaternion, [*loc, "waypoints", i, "attitude_quaternion"])
+                    for i, w in enumerate(path.waypoints)
+                ]
+            ),
+            "limits": limits(path),
+            "segment_durations": None if path.segment_durations_s is None else np.array(path.segment_durations_s),
+            "duration_override": task.duration_s,
+        }
+    if isinstance(path, ArcPathIn):
+        timing = {
+            "attitude": path.attitude,
+            "duration": DEFAULT_DURATION_S if task.duration_s is None else task.duration_s,
+            "ramp_time": task.ramp_time_s,
+            "profile": task.profile,
+        }
+        three_points = {"via_position_m": path.via_position_m, "end_position_m": path.end_position_m}
+        centred = {"centre_m": path.centre_m, "axis": path.axis, "angle_deg": path.angle_deg}
+        if any(v is not None for v in three_points.values()):
+            for name, value in centred.items():
+                if value is not None:
+                    raise _invalid([*loc, name], "give either centre_m, axis and angle_deg or via_position_m and end_position_m")
+            for name, value in three_points.items():
+                if value is None:
+                    raise _invalid([*loc, name], "required with the other of via_position_m and end_position_m")
+            return {"via_position": path.via_position_m, "end_position": path.end_position_m, **timing}
+        for name, value in centred.items():
+            if value is None:
+                raise _invalid([*loc, name], "required: give centre_m, axis and angle_deg (or via_position_m and end_position_m)")
+        assert path.angle_deg is not None
+        return {"centre": path.centre_m, "axis": path.axis, "angle": math.radians(path.angle_deg), **timing}
+    assert isinstance(path, RasterPathIn)
+    return {
+        "corner": path.corner_m,
+        "scan_edge": path.scan_edge_m,
+        "step_edge": path.step_edge_m,
+        "line_spacing": path.line_spacing_m,
+        "standoff": path.standoff_m,
+        "scan_speed": path.scan_speed_m_s,
+        "scan_acceleration": path.scan_acceleration_m_s2,
+        "turn_radius": path.turn_radius_m,
+        "sensor_axis": path.sensor_axis,
+        "approach": limits(path),
+        "pass_index": path.pass_index,
+        "duration_override": task.duration_s,
+    }
+
+
+def _engine_error(exc: ParameterError, kind: str, loc: tuple[str | int, ...]) -> ApiValidationError:
+    """The 422 of an engine error, at the task field (``q0_deg``, ``duration_s``, ...) or the
+    path field (``path.<type>.<field>``) it names."""
+    parts = field_path(exc.field)
+    head = str(parts[0])
+    if head in TASK_FIELDS:
+        return _invalid([*loc, TASK_FIELDS[head], *parts[1:]], exc.reason)
+    names = [PATH_FIELDS.get(p, p) if isinstance(p, str) else p for p in parts]
+    if kind == "waypoints" and names[-1] == "attitude":
+        names[-1] = "attitude_quaternion"
+    return _invalid([*loc, "path", kind, *names], exc.reason)
+
+
+def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("body", "task")) -> CartesianTask:
+    """The engine's task of an API task (422s name the offending field)."""
+    kind = task.path.type
+    if kind == "line":
+        return _line_task(model, task, loc)
+    for name in ("target_position_m", "target_attitude_quaternion"):
+        if getattr(task, name) is not None:
+            raise _invalid([*loc, name], f"only for line paths (the {kind} path sets its own poses)")
+    path_loc = [*loc, "path", kind]
+    try:
+        q0 = np.radians(task.q0_deg)
+        position, attitude = start_pose(model, q0)
+        path = make_path(kind, position, attitude, **path_spec(task.path, task, path_loc))
+        if task.duration_s is None and path.duration > MAX_DURATION_S:
+            raise _invalid(
+                path_loc,
+                f"the path takes {path.duration:.6g} s at its speeds (or durations), more than the {MAX_DURATION_S:g} s allowed: "
+                "raise its speeds or give duration_s",
+            )
+        return CartesianTask.following(path, q0, dt=task.dt_s, joint_speed_limit=math.radians(task.joint_speed_limit_deg_s))
+    except ParameterError as exc:
+        raise _engine_error(exc, kind, loc) from None
+
+
+def _line_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...]) -> CartesianTask:
+    if task.target_position_m is None or task.target_attitude_quaternion is None:
+        name = "target_position_m" if task.target_position_m is None else "target_attitude_quaternion"
+        raise _invalid([*loc, name], "required for a line path")
+    attitude = _matrix(task.target_attitude_quaternion, [*loc, "target_attitude_quaternion"])
     try:
         return CartesianTask.from_q0(
             model,
             np.radians(task.q0_deg),
             np.asarray(task.target_position_m, dtype=float),
             attitude,
-            duration=task.duration_s,
+            duration=DEFAULT_DURATION_S if task.duration_s is None else task.duration_s,
             ramp_time=task.ramp_time_s,
             dt=task.dt_s,
             profile=task.profile,
             joint_speed_limit=math.radians(task.joint_speed_limit_deg_s),
         )
     except ParameterError as exc:
-        api_field = names.get(exc.field, exc.field)
-        path = [*loc, api_field]
-        raise ApiValidationError(f"invalid task: {api_field}: {exc.reason}", [{"loc": path, "msg": exc.reason}]) from None
+        raise _engine_error(exc, "line", loc) from None
 
 
 def metrics_out(m: Metrics) -> dict[str, Any]:

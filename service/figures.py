@@ -38,7 +38,10 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from engine.errors import ParameterError
 from engine.inverses import METHODS
+from engine.kinematics import kinematics_batch
+from engine.model import RobotModel
 from engine.spatial import log_so3, quaternion_to_matrix
 
 FORMATS = {"svg": "image/svg+xml", "png": "image/png"}
@@ -69,6 +72,7 @@ class PlanData:
         self.method: dict[str, Any] = plan.get("method") or {}
         self.metrics: dict[str, Any] = plan.get("metrics") or {}
         self.request: dict[str, Any] = plan.get("request") or {}
+        self.robot: dict[str, Any] | None = plan.get("robot")  # the robot's parameters, for drawing the arm
         self.t = _arr(traj["t_s"])
         self.q_deg = _arr(traj["joint_angles_deg"], 2)
         self.qd_deg_s = _arr(traj["joint_velocities_deg_s"], 2)
@@ -368,6 +372,92 @@ def fig_damping(data: PlanData) -> Figure:
     return fig
 
 
+SCENE_INSTANTS = 5
+#: The carrier's drift is drawn magnified to this fraction of the scene's size (and labelled so).
+DRIFT_SCENE_FRACTION = 0.15
+
+
+def _stride(n: int, max_points: int = MAX_POINTS) -> np.ndarray:
+    """Indices of at most ``max_points`` evenly strided samples of ``n`` (first and last kept)."""
+    if n <= max_points:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, max_points).round().astype(int))
+
+
+def arm_polylines(data: PlanData, count: int = SCENE_INSTANTS) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Times ``(K,)`` and the arm at ``K`` (at most ``count``) evenly spread finite samples: each
+    ``(n + 2, 3)`` points base CoM, joints 1..n, end effector (m, world), from the plan's joint
+    angles and base pose and the robot's forward kinematics. Empty without the robot."""
+    if not data.robot or data.q_deg.size == 0:
+        return np.zeros(0), []
+    try:
+        model = RobotModel.from_dict(data.robot)
+    except (ParameterError, KeyError, TypeError, ValueError):
+        return np.zeros(0), []
+    R = _rotations(data.base_quat)
+    finite = np.flatnonzero(
+        np.all(np.isfinite(data.q_deg), axis=1)
+        & np.all(np.isfinite(data.base_position), axis=1)
+        & np.all(np.isfinite(R), axis=(1, 2))
+    )
+    if finite.size == 0 or data.q_deg.shape[1] != model.n_joints:
+        return np.zeros(0), []
+    index = finite[np.unique(np.linspace(0, finite.size - 1, min(count, finite.size)).round().astype(int))]
+    kin = kinematics_batch(model, np.radians(data.q_deg[index]), R[index], data.base_position[index])
+    lines = [
+        np.concatenate([data.base_position[k][None], kin.joint_positions[i], kin.ee_position[i][None]])
+        for i, k in enumerate(index)
+    ]
+    return data.t[index], lines
+
+
+def fig_scene_3d(data: PlanData) -> Figure:
+    """The counterpart of the paper's Fig. 10: the desired and achieved end-effector paths in
+    3D, the arm drawn as links (base CoM, joints, end effector) at a few instants, and the
+    carrier's CoM drift, magnified (the factor is in the legend) since it is millimetres."""
+    fig = Figure(figsize=(8.0, 6.4), dpi=DPI, layout="constrained")
+    ax = fig.add_subplot(projection="3d")
+    fig.suptitle(_title(data, "3D view: end-effector path, arm and carrier"), fontsize=10)
+    idx = _stride(len(data.t))
+    desired, achieved = data.ee_position_desired[idx], data.ee_position[idx]
+    ax.plot(*desired.T, color="C0", linewidth=3.0, alpha=0.45, label="desired end-effector path")
+    ax.plot(*achieved.T, color="C1", linewidth=1.0, label="achieved end-effector path")
+    times, arms = arm_polylines(data)
+    for k, (t, arm) in enumerate(zip(times, arms, strict=True)):
+        shade = 0.35 + 0.65 * k / max(1, len(arms) - 1)
+        ax.plot(*arm.T, color=(0.2, 0.2, 0.2, shade), linewidth=2.0, marker="o", markersize=3, label=f"arm at t = {t:.3g} s")
+    points = [p for p in (desired, achieved, *arms) if p.size]
+    cloud = np.concatenate(points) if points else np.zeros((1, 3))
+    cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
+    base = data.base_position[np.all(np.isfinite(data.base_position), axis=1)]
+    if base.shape[0]:
+        drift = base - base[0]
+        size = float(np.ptp(cloud, axis=0).max()) if cloud.shape[0] else 1.0
+        largest = float(np.linalg.norm(drift, axis=1).max())
+        factor = 1.0 if largest == 0.0 else max(1.0, DRIFT_SCENE_FRACTION * size / largest)
+        path = base[0] + factor * drift[_stride(len(drift))]
+        ax.plot(
+            *path.T,
+            color="C2",
+            linewidth=1.6,
+            label=f"carrier CoM drift ×{factor:.3g} (max {largest * 1e3:.3g} mm)",
+        )
+        ax.scatter(*base[0], color="C2", marker="s", s=30, label="carrier CoM at t = 0")
+        cloud = np.concatenate([cloud, path]) if cloud.shape[0] else path
+    if cloud.shape[0]:
+        low, high = cloud.min(axis=0), cloud.max(axis=0)
+        span = np.maximum(high - low, 1e-3 * max(1.0, float((high - low).max())))
+        ax.set_xlim(low[0], low[0] + span[0])
+        ax.set_ylim(low[1], low[1] + span[1])
+        ax.set_zlim(low[2], low[2] + span[2])
+        ax.set_box_aspect(tuple(span))  # true proportions: metres are metres on every axis
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.legend(loc="upper left", fontsize=7, framealpha=0.85)
+    return fig
+
+
 PLAN_FIGURES: dict[str, Callable[[PlanData], Figure]] = {
     "ee-velocity": fig_ee_velocity,
     "gjm-determinant": fig_gjm_determinant,
@@ -376,6 +466,7 @@ PLAN_FIGURES: dict[str, Callable[[PlanData], Figure]] = {
     "tracking-errors": fig_tracking_errors,
     "base-motion": fig_base_motion,
     "damping": fig_damping,
+    "scene-3d": fig_scene_3d,
 }
 FIGURE_TITLES = {
     "ee-velocity": "Desired end-effector velocity (Fig. 4)",
@@ -385,6 +476,7 @@ FIGURE_TITLES = {
     "tracking-errors": "Tracking errors (Fig. 11)",
     "base-motion": "Base motion",
     "damping": "Damping",
+    "scene-3d": "3D view: path, arm and carrier (Fig. 10)",
 }
 JOB_FIGURES = ("convergence",)
 COMPARE_FIGURES = ("tracking-errors",)

@@ -9,6 +9,8 @@ from typing import Annotated, Any, Literal, get_args
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, check_weights
+from engine.paths import ARC_ATTITUDES, MAX_PASSES, MAX_WAYPOINTS, PATH_TYPES
+from engine.shortest import DEFAULT_RELATIVE_TOLERANCE
 from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
 from engine.trajectory import MAX_DURATION_S, MIN_DT_S, PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY
 from engine.tuning import MAX_BITS_PER_GENE, MAX_GENERATIONS, MAX_POPULATION
@@ -172,22 +174,153 @@ class JacobianOut(BaseModel):
 # --- tasks --------------------------------------------------------------------------------
 
 
+UNIT_QUATERNION_TOLERANCE = 1e-6
+#: Coordinates of path geometry (m): far beyond any robot's reach, small enough to stay finite.
+MAX_COORDINATE_M = 1e4
+
+
+def _unit_quaternion(value: list[float]) -> list[float]:
+    norm = sum(x * x for x in value) ** 0.5
+    if abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE:
+        raise ValueError(
+            f"must be a unit quaternion [w, x, y, z] (norm 1 within {UNIT_QUATERNION_TOLERANCE:g}), got norm {norm:.9g}"
+        )
+    return value
+
+
+UnitQuaternion = Annotated[
+    list[float],
+    Field(min_length=4, max_length=4, description="unit quaternion [w, x, y, z] (norm 1 within 1e-6)"),
+    AfterValidator(_unit_quaternion),
+]
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE_M, le=MAX_COORDINATE_M)]
+Point3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+
+
+class PoseIn(Input):
+    position_m: Point3 = Field(description="end-effector position, m (world)")
+    attitude_quaternion: UnitQuaternion = Field(description="end-effector attitude [w, x, y, z] (end effector -> world)")
+
+
+class MoveLimits(Input):
+    """Limits that time rest-to-rest moves (quintic): each move takes the shortest duration
+    within all four."""
+
+    max_speed_m_s: float = Field(default=0.05, gt=0, le=100, description="maximum linear speed, m/s")
+    max_angular_speed_deg_s: float = Field(default=5.0, gt=0, le=3600, description="maximum angular speed, deg/s")
+    max_acceleration_m_s2: float = Field(default=0.02, gt=0, le=100, description="maximum linear acceleration, m/s^2")
+    max_angular_acceleration_deg_s2: float = Field(
+        default=2.0, gt=0, le=3600, description="maximum angular acceleration, deg/s^2"
+    )
+
+
+class LinePathIn(Input):
+    """The paper's straight line from the start pose to the task's `target_position_m` and
+    `target_attitude_quaternion`, the attitude rotating about one fixed axis; timed by the task's
+    `duration_s` (default 15), `profile` and `ramp_time_s`."""
+
+    type: Literal["line"] = "line"
+
+
+class WaypointsPathIn(MoveLimits):
+    """Poses visited in order from the start pose: each segment a straight line and an SO(3)
+    geodesic on one quintic time law, rest to rest (the path passes through every pose with
+    continuous velocity and acceleration). Timed by the limits, or by `segment_durations_s`;
+    the task's `duration_s`, if given, rescales the whole path to it."""
+
+    type: Literal["waypoints"]
+    waypoints: list[PoseIn] = Field(min_length=1, max_length=MAX_WAYPOINTS, description="poses to visit, in order")
+    segment_durations_s: list[Annotated[float, Field(gt=0, le=MAX_DURATION_S)]] | None = Field(
+        default=None, description="s, one per waypoint (the segment that ends there); replaces the limits"
+    )
+
+
+class ArcPathIn(Input):
+    """A circular arc from the start position: either `centre_m`, `axis` and `angle_deg` (the
+    start turned about the line through the centre along the axis, right hand), or
+    `via_position_m` and `end_position_m` (the circle through the start, via and end points).
+    Timed like a line by the task's `duration_s` (default 15), `profile` and `ramp_time_s`."""
+
+    type: Literal["arc"]
+    centre_m: Point3 | None = Field(default=None, description="a point on the arc's axis, m")
+    axis: Point3 | None = Field(default=None, description="direction of the arc's axis (normalised)")
+    angle_deg: float | None = Field(default=None, ge=-360, le=360, description="turn about the axis, deg (right hand)")
+    via_position_m: Point3 | None = Field(default=None, description="a point the arc passes through, m")
+    end_position_m: Point3 | None = Field(default=None, description="where the arc ends, m")
+    attitude: Literal["tangent", "fixed"] = Field(
+        default="tangent",
+        description="`tangent`: the attitude turns with the arc (fixed relative to its tangent frame); `fixed`: held",
+    )
+
+
+class RasterPathIn(MoveLimits):
+    """A boustrophedon scan of the rectangle `corner_m + x scan_edge_m + y step_edge_m` (x, y in
+    [0, 1]) from the side of its normal `n = scan_edge x step_edge` (normalised): the end
+    effector at `standoff_m` along n, the sensor axis pointing at the patch (along -n). Passes run
+    along the scan edge every `line_spacing_m` along the step edge, alternating direction, joined
+    outside the patch by turns of `turn_radius_m`; the whole scan at `scan_speed_m_s` with
+    ramps of `scan_acceleration_m_s2` at its ends, after a quintic approach (the limits) from the
+    start pose. The task's `duration_s`, if given, rescales the whole path to it."""
+
+    type: Literal["raster"]
+    corner_m: Point3 = Field(description="a corner of the patch, m")
+    scan_edge_m: Point3 = Field(description="edge vector the passes run along, m")
+    step_edge_m: Point3 = Field(description="edge vector the passes step along (perpendicular to the scan edge), m")
+    line_spacing_m: float = Field(
+        gt=0, le=MAX_COORDINATE_M, description="distance between passes, m (at most the step edge's length)"
+    )
+    standoff_m: float = Field(gt=0, le=MAX_COORDINATE_M, description="sensor distance from the patch along its normal, m")
+    scan_speed_m_s: float = Field(gt=0, le=100, description="speed along the scan, m/s")
+    scan_acceleration_m_s2: float = Field(
+        default=0.01, gt=0, le=100, description="acceleration at the scan's start and end, m/s^2"
+    )
+    turn_radius_m: float | None = Field(
+        default=None,
+        gt=0,
+        le=MAX_COORDINATE_M,
+        description="radius of the turns between passes, m (default and at most half the spacing)",
+    )
+    sensor_axis: Point3 = Field(default=[0.0, 0.0, 1.0], description="the sensor's axis in the end-effector frame (normalised)")
+    pass_index: int | None = Field(
+        default=None,
+        ge=0,
+        lt=MAX_PASSES,
+        description="scan only this pass (0-based) after the approach: one task per pass for tuning",
+    )
+
+
+PathIn = Annotated[LinePathIn | WaypointsPathIn | ArcPathIn | RasterPathIn, Field(discriminator="type")]
+PathType = Literal["line", "waypoints", "arc", "raster"]
+assert set(get_args(PathType)) == set(PATH_TYPES) and ARC_ATTITUDES == ("tangent", "fixed")
+
+
 class TaskIn(Input):
-    """A point-to-point Cartesian task; the start pose is the forward kinematics of ``q0_deg``
-    with the base at rest at the origin."""
+    """A Cartesian task: the end effector follows `path` (by default the straight line to the
+    target pose) from the forward kinematics of ``q0_deg`` with the base at rest at the origin.
+    Errors in path fields are reported at ``task.path.<type>.<field>``."""
 
     model_config = ConfigDict(json_schema_extra={"examples": [PAPER_TASK_EXAMPLE]}, allow_inf_nan=False)
 
     q0_deg: list[AngleDeg] = Field(
         min_length=1, max_length=12, description="initial joint angles, deg; one per joint of the robot"
     )
-    target_position_m: Vec3 = Field(description="target end-effector position, m")
-    target_attitude_quaternion: Quaternion = Field(description="target end-effector attitude [w, x, y, z]")
-    duration_s: float = Field(default=15.0, gt=0, le=MAX_DURATION_S, description="s")
+    target_position_m: Vec3 | None = Field(
+        default=None, description="target end-effector position, m (line paths only, required)"
+    )
+    target_attitude_quaternion: Quaternion | None = Field(
+        default=None, description="target end-effector attitude [w, x, y, z] (line paths only, required; normalised)"
+    )
+    duration_s: float | None = Field(
+        default=None,
+        gt=0,
+        le=MAX_DURATION_S,
+        description="s; line and arc: default 15; waypoints and raster: default the path's own timing, else rescaled to it",
+    )
     ramp_time_s: float = Field(default=1.5, ge=0, le=300, description="s, trapezoidal profile only; at most duration_s / 2")
     dt_s: float = Field(default=0.25, ge=MIN_DT_S, le=1, description="planner step, s; duration_s / dt_s at most 20,000 steps")
-    profile: Literal["trapezoidal", "quintic"] = "trapezoidal"
+    profile: Literal["trapezoidal", "quintic"] = Field(default="trapezoidal", description="time law of line and arc paths")
     joint_speed_limit_deg_s: float = Field(default=6.0, gt=0, le=MAX_MAGNITUDE, description="symmetric joint speed limit, deg/s")
+    path: PathIn = Field(default_factory=LinePathIn, description="the path type and its parameters (default: line)")
 
 
 class TaskPreset(BaseModel):
@@ -195,6 +328,7 @@ class TaskPreset(BaseModel):
     description: str
     robot_id: str
     task: TaskIn
+    method: MethodIn | None = Field(default=None, description="the method and parameters the preset is meant to be planned with")
 
 
 class TaskPresetList(BaseModel):
@@ -210,6 +344,9 @@ class MethodIn(Input):
     params: dict[Annotated[str, Field(max_length=40)], Magnitude] = Field(
         default_factory=dict, max_length=4, description="method parameters; missing ones take defaults"
     )
+
+
+TaskPreset.model_rebuild()
 
 
 class OneRobot(Input):
@@ -346,6 +483,64 @@ class PlanOut(PlanSummary):
 class PlanList(BaseModel):
     items: list[PlanSummary]
     total: int
+
+
+# --- shortest feasible duration -----------------------------------------------------------
+
+
+class DurationSearchSettings(Input):
+    relative_tolerance: float = Field(
+        default=DEFAULT_RELATIVE_TOLERANCE,
+        gt=0,
+        le=0.01,
+        description="the search stops when the shortest feasible duration found is within this fraction of the longest "
+        "infeasible one below it (the boundary lies between them)",
+    )
+    candidates: int = Field(default=4, ge=1, le=16, description="durations planned per bisection round (in parallel)")
+    max_duration_s: float | None = Field(
+        default=None, gt=0, le=MAX_DURATION_S, description="longest duration tried, s (default: the task limits)"
+    )
+
+
+class ShortestDurationRequest(PlanRequest):
+    """A plan request whose task's duration is searched: the task's `duration_s` (or its path's
+    own timing) is only the starting point."""
+
+    model_config = ConfigDict(
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {
+                    "robot_id": "table1",
+                    "task": PAPER_TASK_EXAMPLE,
+                    "method": {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}},
+                    "replay": False,
+                    "search": {"relative_tolerance": 0.002, "candidates": 4},
+                }
+            ]
+        },
+    )
+
+    search: DurationSearchSettings = Field(default_factory=DurationSearchSettings)
+
+
+class DurationSearchOut(BaseModel):
+    success: bool = Field(description="a feasible duration was found (false: none up to the longest duration tried)")
+    message: str
+    duration_s: float = Field(description="the shortest feasible duration found, the plan's (the longest tried if none)")
+    infeasible_duration_s: float | None = Field(
+        description="the longest infeasible duration found below it, s (null if even one step was feasible)"
+    )
+    relative_gap: float | None = Field(description="duration_s / infeasible_duration_s - 1: where the boundary may lie")
+    joint_speed_margin_deg_s: float | None = Field(description="joint speed limit minus the plan's peak joint speed, deg/s")
+    limiting: str = Field(description="what fails at infeasible_duration_s (the plan verdict there)")
+    evaluations: int = Field(description="metrics-only plans run by the search")
+    rounds: int
+
+
+class ShortestDurationOut(BaseModel):
+    search: DurationSearchOut
+    plan: PlanOut = Field(description="the stored plan at duration_s (its request carries that duration)")
 
 
 # --- tuning jobs --------------------------------------------------------------------------

@@ -12,13 +12,15 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from service import figures
+from service.deps import SessionRoute
 from service.errors import ApiError, ApiValidationError, NotFoundError, responses
-from service.models import Plan, TuningJob
+from service.models import Plan, Robot, TuningJob
 from service.storage import unpack_trajectory
 
-router = APIRouter(tags=["figures"])
+router = APIRouter(tags=["figures"], route_class=SessionRoute)
 
 Format = Annotated[Literal["svg", "png"], Query(description="svg (default) or png")]
 MAX_COMPARE = 8
@@ -56,9 +58,25 @@ def _image(request: Request, content: bytes, fmt: str, hit: bool, immutable: boo
     return Response(content, media_type=figures.FORMATS[fmt], headers=headers)
 
 
-def plan_dict(p: Plan) -> dict[str, Any]:
-    trajectory = unpack_trajectory(p.trajectory_data)
-    return {"id": p.id, "method": p.method, "metrics": p.metrics, "request": p.request, "trajectory": trajectory}
+def plan_dict(p: Plan, robot: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A stored plan as the figures read it; ``robot`` the robot's parameters (to draw the arm)."""
+    return {
+        "id": p.id,
+        "method": p.method,
+        "metrics": p.metrics,
+        "request": p.request,
+        "trajectory": unpack_trajectory(p.trajectory_data),
+        "robot": robot,
+    }
+
+
+def robot_parameters(session: Session, p: Plan) -> dict[str, Any] | None:
+    """The parameters of the robot a plan was made for: the stored robot, or the request's inline one."""
+    if p.robot_id is not None:
+        robot = session.get(Robot, p.robot_id)
+        return dict(robot.parameters) if robot is not None else None
+    inline = (p.request or {}).get("robot")
+    return dict(inline) if isinstance(inline, dict) else None
 
 
 @router.get(
@@ -107,7 +125,7 @@ def _compare_plans_figure(name: str, request: Request, ids: str, format: str) ->
 @router.get(
     "/v1/plans/{plan_id}/figures/{name}",
     operation_id="get_plan_figure",
-    summary="A figure of a stored plan (the paper's Figs. 4 to 11)",
+    summary="A figure of a stored plan (the paper's Figs. 4 to 11; `scene-3d` is Fig. 10's 3D view)",
     description="Names: "
     + ", ".join(f"`{n}`" for n in figures.PLAN_FIGURES)
     + ". Axes carry units; the singular region (smallest singular value below the plan's epsilon, "
@@ -130,7 +148,7 @@ def _plan_figure(plan_id: str, name: str, request: Request, format: str) -> Resp
             row = session.get(Plan, plan_id)
             if row is None:
                 raise NotFoundError("plan", plan_id)
-            return plan_dict(row)
+            return plan_dict(row, robot_parameters(session, row))
 
     content, hit = figures.cached(
         ("plan", plan_id, name, format), lambda: figures.render_plan_figure(figures.plan_data(plan_id, load), name, format)

@@ -15,11 +15,12 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.dialects import postgresql, sqlite
 
 from service.db import Database, unavailable_reason
+from service.deps import SessionRoute
 from service.migrate import current_revision, head_revision
 from service.models import ServiceProbe, utcnow
 from service.schemas import Health
 
-router = APIRouter(tags=["health"])
+router = APIRouter(tags=["health"], route_class=SessionRoute)
 
 READY_TIMEOUT_S = 3.0
 PROBE_NAME = f"readyz:{socket.gethostname()}:{os.getpid()}"[:64]

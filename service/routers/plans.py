@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import Annotated, Any
 
 import numpy as np
@@ -20,12 +21,12 @@ from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from engine import PlanResult, make_inverse, plan, replay
+from engine import PlanResult, RobotModel, make_inverse, plan, replay
 from engine.errors import ParameterError
 from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
 from service.db import Database
-from service.deps import SessionDep, SettingsDep
+from service.deps import SessionDep, SessionRoute, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
 from service.models import Plan
 from service.quota import check_quota
@@ -33,7 +34,7 @@ from service.schemas import PLAN_SECTIONS, PlanList, PlanOut, PlanRequest, PlanS
 from service.settings import Settings
 from service.storage import pack_trajectory, unpack_trajectory
 
-router = APIRouter(prefix="/v1/plans", tags=["plans"])
+router = APIRouter(prefix="/v1/plans", tags=["plans"], route_class=SessionRoute)
 
 
 def check_method(name: str, params: dict[str, float], loc: tuple[str, ...] = ("body", "method")) -> Any:
@@ -135,19 +136,33 @@ def plan_json(summary: PlanSummary, sections: dict[str, Any]) -> bytes:
 )
 async def create_plan(body: PlanRequest, request: Request, settings: SettingsDep, fields: FieldsQuery = None) -> Response:
     sections = parse_fields(fields)
+    db: Database = request.app.state.db
+    return await run_admitted(request, store_plan, db, settings, sections, lambda session: compute_plan(session, body, settings))
+
+
+async def run_admitted(request: Request, work: Callable[..., Response], *args: Any) -> Response:
+    """Run ``work(*args)`` in the thread pool once the plan admission lets it in."""
     async with request.app.state.plan_admission.slot():
-        response: Response = await run_in_threadpool(_create_plan, request.app.state.db, body, settings, sections)
+        response: Response = await run_in_threadpool(work, *args)
         return response
 
 
-def _create_plan(db: Database, body: PlanRequest, settings: Settings, sections: set[str]) -> Response:
+def store_plan(
+    db: Database,
+    settings: Settings,
+    sections: set[str],
+    compute: Callable[[Session], tuple[Plan, dict[str, np.ndarray]]],
+    wrap: Callable[[bytes], bytes] = lambda plan: plan,
+) -> Response:
+    """Compute a plan (``compute``: the row and its trajectory arrays), store it within the
+    quota and answer 201 with ``wrap`` of its JSON body and its ``Location``."""
     with db.session() as session:
-        row, trajectory = compute_plan(session, body, settings)
+        row, trajectory = compute(session)
         check_quota(session, settings.storage_quota_bytes, len(row.trajectory_data))
         session.add(row)
         session.commit()  # before the response goes out: a client's next request must see it
     parts = {"trajectory": trajectory, "replay": row.replay}
-    content = plan_json(plan_summary(row), {name: parts[name] for name in PLAN_SECTIONS if name in sections})
+    content = wrap(plan_json(plan_summary(row), {name: parts[name] for name in PLAN_SECTIONS if name in sections}))
     return Response(content, status_code=201, media_type="application/json", headers={"Location": f"/v1/plans/{row.id}"})
 
 
@@ -157,17 +172,33 @@ def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tup
     session.rollback()  # end the read: no connection is held while the plan is computed
     task = build_task(model, body.task)
     inverse = check_method(body.method.name, body.method.params)
+    return finish_plan(
+        body,
+        robot_id,
+        model,
+        settings,
+        lambda: plan(model, task, inverse, **plan_options(body)),
+    )
+
+
+def plan_options(body: PlanRequest) -> dict[str, Any]:
+    """The engine's plan keywords of a request (feedback gain and objective)."""
+    return {
+        "feedback_gain": body.feedback_gain,
+        "weights": (body.weights[0], body.weights[1]),
+        "aggregation": body.aggregation,
+        "attitude_term": body.attitude_term,
+    }
+
+
+def finish_plan(
+    body: PlanRequest, robot_id: str | None, model: RobotModel, settings: Settings, make: Callable[[], PlanResult]
+) -> tuple[Plan, dict[str, np.ndarray]]:
+    """Run ``make`` (the engine's plan of ``body``), replay it if asked: the row to store and the
+    trajectory arrays; engine errors are 422s naming the field."""
     try:
         start = time.perf_counter()
-        result = plan(
-            model,
-            task,
-            inverse,
-            feedback_gain=body.feedback_gain,
-            weights=(body.weights[0], body.weights[1]),
-            aggregation=body.aggregation,
-            attitude_term=body.attitude_term,
-        )
+        result = make()
         skipped = replay_skip_reason(result, settings.max_replay_steps) if body.replay else None
         checked = replay(model, result) if body.replay and skipped is None else None
         elapsed = time.perf_counter() - start

@@ -12,13 +12,13 @@ from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from service import jsonio
 from service.convert import clean, robot_model
-from service.deps import SessionDep, SettingsDep
+from service.deps import SessionDep, SessionRoute, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, responses
 from service.models import Robot
 from service.quota import check_quota
 from service.schemas import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams
 
-router = APIRouter(prefix="/v1/robots", tags=["robots"])
+router = APIRouter(prefix="/v1/robots", tags=["robots"], route_class=SessionRoute)
 
 
 def robot_out(robot: Robot) -> RobotOut:

@@ -14,14 +14,14 @@ from sqlalchemy.orm import Session
 from service import jsonio, queue
 from service.convert import resolve_robot
 from service.db import Database
-from service.deps import SessionDep, SettingsDep
+from service.deps import SessionDep, SessionRoute, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, TooManyRequestsError, responses
 from service.jobs import MAX_JOB_JOINT_STEPS, validate_request
 from service.models import TuningJob
 from service.quota import check_quota
 from service.schemas import JobProgress, JobStatus, TuningJobList, TuningJobOut, TuningJobRequest, TuningJobResult
 
-router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"])
+router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"], route_class=SessionRoute)
 
 RETRY_AFTER_S = 10  # Retry-After of a 429 (the queue is full)
 

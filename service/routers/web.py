@@ -33,12 +33,12 @@ from sqlalchemy import select
 
 from engine.inverses import METHODS
 from service import figures
-from service.deps import get_db
+from service.deps import SessionRoute, get_db
 from service.models import Plan, Robot, TuningJob
 from service.routers.tasks import PRESETS
 from service.sessions import CSRF_COOKIE, SESSION_COOKIE, close_session, open_session
 
-router = APIRouter(include_in_schema=False)
+router = APIRouter(include_in_schema=False, route_class=SessionRoute)
 
 TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
 env = Environment(loader=FileSystemLoader(TEMPLATES), autoescape=select_autoescape(["html"]))

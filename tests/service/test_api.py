@@ -94,7 +94,7 @@ def test_task_presets(client: httpx.Client) -> None:
     listing = client.get("/v1/task-presets").json()
     assert "paper-line" in [p["name"] for p in listing["items"]]
     preset = client.get("/v1/task-presets/paper-line").json()
-    assert preset["task"] == PAPER_TASK
+    assert preset["task"] == {**PAPER_TASK, "path": {"type": "line"}}
     _problem(client.get("/v1/task-presets/nope"), 404)
 
 

@@ -15,7 +15,8 @@ from tests.service.conftest import PAPER_TASK, Stack, job_body, wait_status
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SVG_NS = "{http://www.w3.org/2000/svg}"
-PLAN_NAMES = ["ee-velocity", "gjm-determinant", "joint-velocities", "joint-angles", "tracking-errors", "base-motion", "damping"]
+TIME_FIGURES = ["ee-velocity", "gjm-determinant", "joint-velocities", "joint-angles", "tracking-errors", "base-motion", "damping"]
+PLAN_NAMES = [*TIME_FIGURES, "scene-3d"]
 
 
 def assert_svg(response: httpx.Response) -> ET.Element:
@@ -52,7 +53,7 @@ def plans(stack: Stack) -> dict[str, str]:
         return out
 
 
-@pytest.mark.parametrize("name", PLAN_NAMES)
+@pytest.mark.parametrize("name", TIME_FIGURES)
 def test_plan_figure_svg_and_png(client: httpx.Client, plans: dict[str, str], name: str) -> None:
     root = assert_svg(client.get(f"/v1/plans/{plans['adaptive']}/figures/{name}"))
     text = svg_text(root)

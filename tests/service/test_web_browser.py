@@ -133,6 +133,7 @@ def test_submit_paper_task_and_see_plan_figures(driver: Any, stack: Stack) -> No
         "tracking-errors",
         "base-motion",
         "damping",
+        "scene-3d",
     ]
     wait_until(driver, lambda d: d.execute_script(ALL_IMAGES_LOADED, "#figures img"))
     widths = driver.execute_script("return Array.from(document.querySelectorAll('#figures img')).map(i => i.naturalWidth)")
