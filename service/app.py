@@ -17,7 +17,7 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 import engine
-from service import errors, security
+from service import errors, openapi, security
 from service.admission import Admission
 from service.db import Database
 from service.migrate import seed_presets
@@ -146,7 +146,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="spacearm", version="0.1.0", description=DESCRIPTION, openapi_tags=TAGS, lifespan=lifespan)
     errors.install(app)
     security.install(app, settings)
-    errors.problem_openapi(app)
+    openapi.install(app, auth_required=bool(settings.keys()))
     for module in (health, robots, tasks, plans, shortest, tuning, figures, web):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")

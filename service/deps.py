@@ -8,12 +8,33 @@ import inspect
 from collections.abc import Callable, Iterator
 from typing import Annotated, Any
 
-from fastapi import Depends, Request
+from fastapi import Depends, Path, Request
 from fastapi.routing import APIRoute
 from sqlalchemy.orm import Session
+from starlette.convertors import Convertor, register_url_convertor
 
 from service.db import Database
 from service.settings import Settings
+
+
+class IdConvertor(Convertor[str]):
+    """``{name:id}`` in a route path: a stored plan's or job's id (32 lowercase hex digits).
+    Other text does not match the route (404), so ``/v1/plans/shortest-duration`` is not read as
+    a plan id and ``OPTIONS`` lists only the methods of the routes that really match."""
+
+    regex = "[0-9a-f]{32}"
+
+    def convert(self, value: str) -> str:
+        return value
+
+    def to_string(self, value: str) -> str:
+        return value
+
+
+register_url_convertor("id", IdConvertor())
+ID_PATTERN = f"^{IdConvertor.regex}$"
+PlanId = Annotated[str, Path(pattern=ID_PATTERN, description="a plan's id (32 hex digits)", examples=["0" * 32])]
+JobId = Annotated[str, Path(pattern=ID_PATTERN, description="a tuning job's id (32 hex digits)", examples=["0" * 32])]
 
 
 def get_db(request: Request) -> Database:

@@ -11,32 +11,32 @@ every route, present and future):
 
 from __future__ import annotations
 
-from starlette.routing import Match
+from starlette.routing import Match, Mount
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.errors import problem
 
+PROBED = ("GET", "POST", "PUT", "PATCH", "DELETE")
+
 
 def allowed_methods(app: ASGIApp, scope: Scope) -> list[str]:
-    """Every method some route accepts at ``scope``'s path (with HEAD for GET, and OPTIONS)."""
+    """Every method some route accepts at ``scope``'s path (with HEAD for GET, and OPTIONS):
+    each method is probed against the routes (included routers answer a full match only for
+    their own methods), a mount (the static files) answers reads."""
     methods: set[str] = set()
     for route in getattr(app, "routes", []):
-        probe = dict(scope, method="GET")
-        match, _ = route.matches(probe)
-        if match is Match.NONE:
+        if isinstance(route, Mount):
+            if route.matches(dict(scope, method="GET"))[0] is not Match.NONE:
+                methods.add("GET")
             continue
-        route_methods = getattr(route, "methods", None)
-        if route_methods:
-            methods |= set(route_methods)
-        else:  # a mount (static files, ...) answers reads
-            methods |= {"GET"}
+        methods |= {m for m in PROBED if route.matches(dict(scope, method=m))[0] is Match.FULL}
     if not methods:
         return []
     if "GET" in methods:
         methods.add("HEAD")
     methods.add("OPTIONS")
     order = ["GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"]
-    return sorted(methods, key=lambda m: order.index(m) if m in order else len(order))
+    return sorted(methods, key=order.index)
 
 
 class MethodsMiddleware:

@@ -6,7 +6,18 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal, get_args
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    GetJsonSchemaHandler,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+from pydantic.json_schema import JsonSchemaValue
+from pydantic_core import CoreSchema
 
 from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, check_weights
 from engine.paths import ARC_ATTITUDES, MAX_PASSES, MAX_WAYPOINTS, PATH_TYPES
@@ -349,11 +360,21 @@ class MethodIn(Input):
 TaskPreset.model_rebuild()
 
 
+#: Vendor key of the schemas whose ``robot_id`` and ``robot`` are exclusive (see OneRobot).
+ROBOT_CHOICE = "x-exactly-one-of"
+
+
 class OneRobot(Input):
     """A request naming its robot: ``robot_id`` (a stored robot) or ``robot`` (inline), exactly
     one of the two (``oneOf`` in the schema)."""
 
-    model_config = ConfigDict(json_schema_extra={"oneOf": [{"required": ["robot_id"]}, {"required": ["robot"]}]})
+    @classmethod
+    def __get_pydantic_json_schema__(cls, core_schema: CoreSchema, handler: GetJsonSchemaHandler) -> JsonSchemaValue:
+        # Marked here, split in the OpenAPI document (service.openapi.split_robot_choice) into a
+        # oneOf of two objects: not json_schema_extra, which a subclass's model_config replaces.
+        schema = handler.resolve_ref_schema(handler(core_schema))
+        schema[ROBOT_CHOICE] = ["robot_id", "robot"]
+        return schema
 
     @model_validator(mode="after")
     def _exactly_one(self) -> Any:

@@ -1,7 +1,7 @@
 """Figures of plans and tuning jobs (SVG or PNG, rendered by :mod:`service.figures`).
 
-The compare route is declared before ``/{plan_id}/figures/{name}``: otherwise
-``/v1/plans/compare/figures/tracking-errors`` would be read as plan ``compare``."""
+Plan and job ids are matched as 32 hex digits (``{plan_id:id}``), so
+``/v1/plans/compare/figures/tracking-errors`` is never read as the figure of a plan ``compare``."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from service import figures
-from service.deps import SessionRoute
+from service.deps import JobId, PlanId, SessionRoute
 from service.errors import ApiError, ApiValidationError, NotFoundError, responses
 from service.models import Plan, Robot, TuningJob
 from service.storage import unpack_trajectory
@@ -123,7 +123,7 @@ def _compare_plans_figure(name: str, request: Request, ids: str, format: str) ->
 
 
 @router.get(
-    "/v1/plans/{plan_id}/figures/{name}",
+    "/v1/plans/{plan_id:id}/figures/{name}",
     operation_id="get_plan_figure",
     summary="A figure of a stored plan (the paper's Figs. 4 to 11; `scene-3d` is Fig. 10's 3D view)",
     description="Names: "
@@ -134,7 +134,7 @@ def _compare_plans_figure(name: str, request: Request, ids: str, format: str) ->
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
-async def get_plan_figure(plan_id: str, name: str, request: Request, format: Format = "svg") -> Response:
+async def get_plan_figure(plan_id: PlanId, name: str, request: Request, format: Format = "svg") -> Response:
     if name not in figures.PLAN_FIGURES:
         raise UnknownFigureError(name, list(figures.PLAN_FIGURES))
     async with request.app.state.figure_admission.slot():
@@ -142,7 +142,7 @@ async def get_plan_figure(plan_id: str, name: str, request: Request, format: For
         return response
 
 
-def _plan_figure(plan_id: str, name: str, request: Request, format: str) -> Response:
+def _plan_figure(plan_id: PlanId, name: str, request: Request, format: str) -> Response:
     def load() -> dict[str, Any]:
         with request.app.state.db.session() as session:
             row = session.get(Plan, plan_id)
@@ -157,14 +157,14 @@ def _plan_figure(plan_id: str, name: str, request: Request, format: str) -> Resp
 
 
 @router.get(
-    "/v1/tuning-jobs/{job_id}/figures/{name}",
+    "/v1/tuning-jobs/{job_id:id}/figures/{name}",
     operation_id="get_tuning_job_figure",
     summary="A figure of a tuning job: `convergence` (best and mean B per generation, paper Fig. 7)",
     description="Updated while the job runs, from the per-generation history in its progress.",
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
-async def get_tuning_job_figure(job_id: str, name: str, request: Request, format: Format = "svg") -> Response:
+async def get_tuning_job_figure(job_id: JobId, name: str, request: Request, format: Format = "svg") -> Response:
     if name not in figures.JOB_FIGURES:
         raise UnknownFigureError(name, figures.JOB_FIGURES)
     async with request.app.state.figure_admission.slot():
@@ -172,7 +172,7 @@ async def get_tuning_job_figure(job_id: str, name: str, request: Request, format
         return response
 
 
-def _job_figure(job_id: str, name: str, request: Request, format: str) -> Response:
+def _job_figure(job_id: JobId, name: str, request: Request, format: str) -> Response:
     with request.app.state.db.session() as session:
         row = session.get(TuningJob, job_id)
         if row is None:

@@ -26,7 +26,7 @@ from engine.errors import ParameterError
 from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
 from service.db import Database
-from service.deps import SessionDep, SessionRoute, SettingsDep
+from service.deps import PlanId, SessionDep, SessionRoute, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
 from service.models import Plan
 from service.quota import check_quota
@@ -81,10 +81,15 @@ def not_replayed(reason: str) -> dict[str, Any]:
     return {"success": False, "message": reason, **dict.fromkeys(fields)}
 
 
+_SECTION = "(" + "|".join(PLAN_SECTIONS) + ")"
+#: A comma-separated list of sections (spaces and empty items allowed), or nothing.
+SECTIONS_PATTERN = rf"^\s*{_SECTION}?\s*(,\s*{_SECTION}?\s*)*$"
 FieldsQuery = Annotated[
     str | None,
     Query(
         max_length=200,
+        # In the document only: parse_fields names the unknown sections in its 422.
+        json_schema_extra={"pattern": SECTIONS_PATTERN},
         description="comma-separated sections of the plan to return besides its summary (id, method, success, "
         f"message, metrics, ...): any of {', '.join(f'`{name}`' for name in PLAN_SECTIONS)}; default all, "
         "empty for the summary only",
@@ -255,9 +260,9 @@ def list_plans(
 
 
 @router.get(
-    "/{plan_id}", operation_id="get_plan", response_model=PlanOut, summary="Get a stored plan", responses=responses(404, 422)
+    "/{plan_id:id}", operation_id="get_plan", response_model=PlanOut, summary="Get a stored plan", responses=responses(404, 422)
 )
-def get_plan(plan_id: str, session: SessionDep, fields: FieldsQuery = None) -> Response:
+def get_plan(plan_id: PlanId, session: SessionDep, fields: FieldsQuery = None) -> Response:
     sections = parse_fields(fields)
     columns: list[Any] = [*SUMMARY_COLUMNS, Plan.replay]
     if "trajectory" in sections:

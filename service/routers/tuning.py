@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session
 from service import jsonio, queue
 from service.convert import resolve_robot
 from service.db import Database
-from service.deps import SessionDep, SessionRoute, SettingsDep
+from service.deps import JobId, SessionDep, SessionRoute, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, TooManyRequestsError, responses
 from service.jobs import MAX_JOB_JOINT_STEPS, validate_request
 from service.models import TuningJob
@@ -154,7 +154,7 @@ def list_tuning_jobs(
     return TuningJobList(items=[job_out(j) for j in rows], total=total)
 
 
-def _load(session: SessionDep, job_id: str) -> TuningJob:
+def _load(session: SessionDep, job_id: JobId) -> TuningJob:
     job = session.get(TuningJob, job_id)
     if job is None:
         raise NotFoundError("tuning job", job_id)
@@ -162,21 +162,25 @@ def _load(session: SessionDep, job_id: str) -> TuningJob:
 
 
 @router.get(
-    "/{job_id}", operation_id="get_tuning_job", response_model=TuningJobOut, summary="Get a tuning job", responses=responses(404)
+    "/{job_id:id}",
+    operation_id="get_tuning_job",
+    response_model=TuningJobOut,
+    summary="Get a tuning job",
+    responses=responses(404),
 )
-def get_tuning_job(job_id: str, session: SessionDep) -> TuningJobOut:
+def get_tuning_job(job_id: JobId, session: SessionDep) -> TuningJobOut:
     return job_out(_load(session, job_id))
 
 
 @router.get(
-    "/{job_id}/result",
+    "/{job_id:id}/result",
     operation_id="get_tuning_job_result",
     response_model=TuningJobResult,
     response_model_by_alias=True,
     summary="Result of a succeeded tuning job (409 until then)",
     responses=responses(404, 409),
 )
-def get_tuning_job_result(job_id: str, session: SessionDep) -> TuningJobResult:
+def get_tuning_job_result(job_id: JobId, session: SessionDep) -> TuningJobResult:
     job = _load(session, job_id)
     if job.status != "succeeded" or job.result is None:
         extra = f": {job.error}" if job.error else ""
@@ -185,14 +189,14 @@ def get_tuning_job_result(job_id: str, session: SessionDep) -> TuningJobResult:
 
 
 @router.post(
-    "/{job_id}/cancel",
+    "/{job_id:id}/cancel",
     operation_id="cancel_tuning_job",
     response_model=TuningJobOut,
     status_code=status.HTTP_202_ACCEPTED,
     summary="Cancel a tuning job (a running one stops after its current generation)",
     responses=responses(404, 409),
 )
-def cancel_tuning_job(job_id: str, session: SessionDep, request: Request) -> TuningJobOut:
+def cancel_tuning_job(job_id: JobId, session: SessionDep, request: Request) -> TuningJobOut:
     job = _load(session, job_id)
     if job.status in ("succeeded", "failed"):
         raise ConflictError(f"tuning job {job_id!r} already {job.status}")

@@ -33,7 +33,7 @@ from sqlalchemy import select
 
 from engine.inverses import METHODS
 from service import figures
-from service.deps import SessionRoute, get_db
+from service.deps import JobId, PlanId, SessionRoute, get_db
 from service.models import Plan, Robot, TuningJob
 from service.routers.tasks import PRESETS
 from service.sessions import CSRF_COOKIE, SESSION_COOKIE, close_session, open_session
@@ -163,8 +163,8 @@ def index(request: Request) -> HTMLResponse:
     return page("index.html", request=request, form={}, **index_context(request))
 
 
-@router.get("/plans/{plan_id}", response_class=HTMLResponse)
-def plan_page(plan_id: str, request: Request) -> HTMLResponse:
+@router.get("/plans/{plan_id:id}", response_class=HTMLResponse)
+def plan_page(plan_id: PlanId, request: Request) -> HTMLResponse:
     with get_db(request).session() as s:
         row = s.execute(
             select(
@@ -193,8 +193,8 @@ def plan_page(plan_id: str, request: Request) -> HTMLResponse:
     )
 
 
-@router.get("/jobs/{job_id}", response_class=HTMLResponse)
-def job_page(job_id: str, request: Request) -> HTMLResponse:
+@router.get("/jobs/{job_id:id}", response_class=HTMLResponse)
+def job_page(job_id: JobId, request: Request) -> HTMLResponse:
     with get_db(request).session() as s:
         job = s.get(TuningJob, job_id)
         if job is None:

@@ -91,10 +91,12 @@ def test_unknown_figure_and_plan_are_404(client: httpx.Client, plans: dict[str, 
     body = r.json()
     assert body["valid_names"] == PLAN_NAMES
     assert all(n in body["detail"] for n in PLAN_NAMES)
-    assert client.get("/v1/plans/missing/figures/damping").status_code == 404
-    r = client.get("/v1/tuning-jobs/missing/figures/nope")
+    missing = "0" * 32  # well-formed, not stored
+    assert client.get(f"/v1/plans/{missing}/figures/damping").status_code == 404
+    assert client.get("/v1/plans/not-an-id/figures/damping").status_code == 404
+    r = client.get(f"/v1/tuning-jobs/{missing}/figures/nope")
     assert r.status_code == 404 and r.json()["valid_names"] == ["convergence"]
-    assert client.get("/v1/tuning-jobs/missing/figures/convergence").status_code == 404
+    assert client.get(f"/v1/tuning-jobs/{missing}/figures/convergence").status_code == 404
     assert client.get(f"/v1/plans/{plans['adaptive']}/figures/damping", params={"format": "gif"}).status_code == 422
 
 

@@ -49,7 +49,7 @@ def test_generated_client_full_flow(stack: Stack, tmp_path: Path) -> None:
         get_result = importlib.import_module("spacearm_client.api.tuning.get_tuning_job_result")
 
         api = client_mod.Client(base_url=stack.url, timeout=None)
-        plan_request = models.PlanRequest.from_dict(
+        plan_request = models.PlanRequestStoredRobot.from_dict(
             {
                 "robot_id": "table1",
                 "task": PAPER_TASK,
@@ -64,7 +64,7 @@ def test_generated_client_full_flow(stack: Stack, tmp_path: Path) -> None:
         missing = get_plan.sync_detailed(plan_id="nope", client=api)
         assert missing.status_code == 404
 
-        job = create_job.sync(client=api, body=models.TuningJobRequest.from_dict(job_body()))
+        job = create_job.sync(client=api, body=models.TuningJobRequestStoredRobot.from_dict(job_body()))
         assert isinstance(job, models.TuningJobOut), job
         deadline = time.monotonic() + 60
         while True:

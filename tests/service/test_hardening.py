@@ -152,7 +152,7 @@ def test_200_concurrent_submissions_from_50_clients_stored_once(make_stack: Call
     with ThreadPoolExecutor(50) as pool:
         list(pool.map(client_thread, range(50)))
     print(f"\nconcurrent submissions: 400 requests (200 jobs, each retried once) from 50 clients: {dict(statuses)}")
-    assert statuses == {202: 400}, (statuses, [b for b in bodies if "\"id\"" not in b][:3])
+    assert statuses == {202: 400}, (statuses, [b for b in bodies if '"id"' not in b][:3])
     assert not any("locked" in b for b in bodies)
     assert all(len(v) == 1 for v in ids.values())  # a retry got the same job
     stored = _stored_jobs(stack)
