@@ -1,6 +1,6 @@
 """Numerical core: free-floating space robot kinematics, the generalized Jacobian,
 singularity-robust inverses, path types, the Cartesian planner, the shortest feasible duration,
-replay and GA tuning.
+replay, GA tuning and objective landscapes.
 
 numpy and scipy, numba for the compiled kernels (:mod:`engine.kernels`), DEAP for the GA; no web
 or database code. SI units and radians throughout.
@@ -21,6 +21,7 @@ from engine.inverses import (
 )
 from engine.jacobian import GJMResult, generalized_jacobian
 from engine.kinematics import ForwardKinematics, State, forward_kinematics
+from engine.landscape import Landscape, axis_values, landscape
 from engine.metrics import BatchMetrics, Metrics
 from engine.model import RobotModel, table1_robot
 from engine.paths import PATH_TYPES, ArcPath, LinePath, Path, RasterPath, WaypointPath, make_path
@@ -45,6 +46,7 @@ __all__ = [
     "ForwardKinematics",
     "GJMResult",
     "InverseStep",
+    "Landscape",
     "LinePath",
     "Metrics",
     "Path",
@@ -61,9 +63,11 @@ __all__ = [
     "TuneResult",
     "WaypointPath",
     "WeightedDLS",
+    "axis_values",
     "compare",
     "forward_kinematics",
     "generalized_jacobian",
+    "landscape",
     "make_inverse",
     "make_path",
     "method_names",

@@ -207,7 +207,7 @@ def plan(
     feedback_gain: float = 0.0,
     weights: tuple[float, float] = (0.5, 0.5),
     aggregation: str = "max",
-    attitude_term: str = "angle",
+    attitude_term: str = "eq18",
     position_tolerance: float = POSITION_TOLERANCE_M,
     attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
 ) -> PlanResult:
@@ -360,7 +360,7 @@ def plan_batch(
     feedback_gain: float = 0.0,
     weights: tuple[float, float] = (0.5, 0.5),
     aggregation: str = "max",
-    attitude_term: str = "angle",
+    attitude_term: str = "eq18",
     threads: int | None = None,
     stop: threading.Event | None = None,
 ) -> BatchResult:

@@ -62,7 +62,7 @@ def shortest_duration(
     feedback_gain: float = 0.0,
     weights: tuple[float, float] = (0.5, 0.5),
     aggregation: str = "max",
-    attitude_term: str = "angle",
+    attitude_term: str = "eq18",
     position_tolerance: float = POSITION_TOLERANCE_M,
     attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
     relative_tolerance: float = DEFAULT_RELATIVE_TOLERANCE,

@@ -113,6 +113,34 @@ class TuneResult:
     stopped: bool = False
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     cache_hits: int = 0  # individuals whose genome had been planned before (not planned again)
+    warnings: list[str] = field(default_factory=list)  # e.g. an optimum on a search bound
+
+
+#: A tuned parameter within this fraction of its search range of a bound is "on the bound".
+BOUND_MARGIN = 0.01
+
+
+def bound_warnings(method: str, best_params: Mapping[str, float], search: Mapping[str, tuple[float, float]]) -> list[str]:
+    """Warnings for tuned parameters on a search bound that could be widened (a bound at the
+    edge of the parameter's valid range cannot be, and is not flagged): the optimum may lie
+    beyond it."""
+    specs = {p.name: p for p in method_spec(method).params}
+    out = []
+    for name, value in best_params.items():
+        lo, hi = search[name]
+        margin = BOUND_MARGIN * (hi - lo)
+        spec = specs[name]
+        if value - lo <= margin and lo > spec.low:
+            side, bound = "lower", lo
+        elif hi - value <= margin and hi < spec.high:
+            side, bound = "upper", hi
+        else:
+            continue
+        out.append(
+            f"{name} = {value:.4g} is on the {side} search bound {bound:g}: the optimum may lie beyond it; "
+            f"widen bounds.{name} (valid range {spec.low:g} to {spec.high:g})"
+        )
+    return out
 
 
 def check_bounds(method: str, bounds: Mapping[str, Sequence[float]] | None) -> dict[str, tuple[float, float]]:
@@ -236,7 +264,7 @@ def tune(
     seed: int | np.random.Generator | None = 0,
     weights: tuple[float, float] = (0.5, 0.5),
     aggregation: str = "max",
-    attitude_term: str = "angle",
+    attitude_term: str = "eq18",
     task_aggregation: str = "mean",
     feedback_gain: float = 0.0,
     callback: Callable[[TuneProgress], bool | None] | None = None,
@@ -407,6 +435,7 @@ def tune(
         stopped=stopped,
         bounds=search,
         cache_hits=cache_hits,
+        warnings=bound_warnings(method, best_params, search) if feasible else [],
     )
 
 

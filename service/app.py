@@ -21,7 +21,8 @@ from service import errors, openapi, security
 from service.admission import Admission
 from service.db import Database
 from service.migrate import seed_presets
-from service.routers import figures, health, plans, robots, shortest, tasks, tuning, web
+from service.retention import Sweeper
+from service.routers import figures, health, job_events, landscapes, plans, robots, shortest, tasks, tuning, web
 from service.settings import Settings
 
 DESCRIPTION = """
@@ -38,7 +39,8 @@ TAGS = [
     {"name": "robots", "description": "Robot parameter sets (schema of robot-table1.yaml) and the generalized Jacobian"},
     {"name": "tasks", "description": "Task presets; `paper-line` is the paper's detection line"},
     {"name": "plans", "description": "Synchronous Cartesian plans with a robust inverse"},
-    {"name": "tuning", "description": "Asynchronous GA tuning jobs of the damping parameters"},
+    {"name": "tuning", "description": "Asynchronous GA tuning jobs of the damping parameters, with live events"},
+    {"name": "landscapes", "description": "Objective landscapes: B over a grid of two parameters of a method"},
     {"name": "health", "description": "Liveness and readiness"},
 ]
 
@@ -139,7 +141,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.kernels.start()
         with contextlib.suppress(Exception):  # not migrated yet: /readyz says so
             seed_presets(db)
+        sweeper = Sweeper(db, settings.retention_days, settings.retention_sweep_s) if settings.retention_days else None
+        if sweeper is not None:
+            sweeper.start()
         yield
+        if sweeper is not None:
+            sweeper.stop()
         db.dispose()
         app.state.health_db.dispose()
 
@@ -147,7 +154,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.install(app)
     security.install(app, settings)
     openapi.install(app, auth_required=bool(settings.keys()))
-    for module in (health, robots, tasks, plans, shortest, tuning, figures, web):
+    for module in (health, robots, tasks, plans, shortest, tuning, job_events, landscapes, figures, web):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     return app

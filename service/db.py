@@ -74,6 +74,11 @@ def is_locked(exc: BaseException) -> bool:
     return isinstance(exc, OperationalError) and any(w in str(exc.orig).lower() for w in ("locked", "busy"))
 
 
+def is_database_fault(exc: BaseException) -> bool:
+    """A fault of the database (worth waiting out), as opposed to an error of the work itself."""
+    return is_locked(exc) or unavailable_reason(exc) is not None
+
+
 def unavailable_reason(exc: BaseException) -> str | None:
     """A short reason when ``exc`` means the database cannot serve requests for now (read-only,
     full, missing, unreachable, out of connections), else None. Never the driver's text."""

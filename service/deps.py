@@ -35,6 +35,9 @@ register_url_convertor("id", IdConvertor())
 ID_PATTERN = f"^{IdConvertor.regex}$"
 PlanId = Annotated[str, Path(pattern=ID_PATTERN, description="a plan's id (32 hex digits)", examples=["0" * 32])]
 JobId = Annotated[str, Path(pattern=ID_PATTERN, description="a tuning job's id (32 hex digits)", examples=["0" * 32])]
+LandscapeId = Annotated[
+    str, Path(pattern=ID_PATTERN, description="an objective landscape's id (32 hex digits)", examples=["0" * 32])
+]
 
 
 def get_db(request: Request) -> Database:

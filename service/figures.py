@@ -30,6 +30,8 @@ from functools import cached_property
 from typing import Any
 
 import matplotlib
+import matplotlib.lines
+import matplotlib.patches
 
 matplotlib.use("Agg")
 
@@ -540,7 +542,8 @@ def _job_history(job: dict[str, Any]) -> dict[str, list[dict[str, Any]]]:
     out: dict[str, list[dict[str, Any]]] = {}
     rows = (job.get("progress") or {}).get("history") or []
     for r in rows:
-        out.setdefault(str(r.get("phase") or job.get("method") or "GA"), []).append(r)
+        name = str(r.get("phase") or job.get("method") or "GA")
+        out.setdefault("DLS baseline" if r.get("role") == "dls_baseline" else name, []).append(r)
     if not out and job.get("result"):
         method = str((job.get("result") or {}).get("method") or job.get("method") or "GA")
         out[method] = list((job.get("result") or {}).get("history") or [])
@@ -570,6 +573,83 @@ def render_compare_figure(plans: Sequence[dict[str, Any] | PlanData], fmt: str =
 
 def render_job_figure(job: dict[str, Any], fmt: str = "svg") -> bytes:
     return render(fig_convergence(job), fmt)
+
+
+def _cell_edges(values: np.ndarray, log: bool) -> np.ndarray:
+    """Edges of the cells centred on ``values`` (midpoints, in log space on a log axis)."""
+    v = np.log10(values) if log else values
+    mid = (v[1:] + v[:-1]) / 2.0
+    edges = np.concatenate([[v[0] - (mid[0] - v[0])], mid, [v[-1] + (v[-1] - mid[-1])]])
+    out: np.ndarray = 10.0**edges if log else edges
+    return out
+
+
+def fig_landscape(data: dict[str, Any]) -> Figure:
+    """log10 B over two parameters (x along the horizontal axis), the infeasible region hatched
+    grey, the grid's best cell, and from a tuning job its GA optimum and the contour
+    ``B = B(tuned DLS)`` (inside it the method beats the tuned DLS)."""
+    grids = data["grids"]
+    x, y = np.asarray(grids["x"], dtype=float), np.asarray(grids["y"], dtype=float)
+    b = np.asarray(grids["objective_b"], dtype=float)
+    feasible = np.asarray(grids["feasible"], dtype=float) > 0.5
+    x_log, y_log = data.get("x_scale") == "log", data.get("y_scale") == "log"
+    fig = Figure(figsize=(8.0, 6.0), dpi=DPI, layout="constrained")
+    ax = fig.subplots()
+    xe, ye = _cell_edges(x, x_log), _cell_edges(y, y_log)
+    shown = np.where(feasible & (b > 0), np.log10(np.where(b > 0, b, 1.0)), np.nan)
+    mesh = ax.pcolormesh(xe, ye, shown.T, cmap="viridis", shading="flat")
+    fig.colorbar(mesh, ax=ax, label="log10 B (objective, m + weighted attitude term)")
+    infeasible = np.where(feasible, np.nan, 1.0)
+    ax.pcolor(xe, ye, np.ma.masked_invalid(infeasible.T), hatch="///", color="0.75", alpha=0.6, shading="flat")
+    handles: list[Any] = [matplotlib.patches.Patch(facecolor="0.75", hatch="///", label="infeasible (speed limit or diverged)")]
+    best = data.get("best_params") or {}
+    xn, yn = data["x_name"], data["y_name"]
+    if best:
+        handles += ax.plot(
+            best[xn],
+            best[yn],
+            "x",
+            color="white",
+            markersize=10,
+            mew=2,
+            label=f"best cell, B = {_fmt(data.get('best_objective_b'))}",
+        )
+    marks = data.get("marks")
+    if marks:
+        dls_b = marks.get("dls_objective_b")
+        if dls_b and np.isfinite(dls_b) and np.nanmin(b) < dls_b < np.nanmax(np.where(feasible, b, np.nan)):
+            ax.contour(x, y, np.where(feasible, b, np.nan).T, levels=[dls_b], colors="white", linestyles="--", linewidths=1.2)
+            handles.append(
+                matplotlib.lines.Line2D([], [], color="white", linestyle="--", label=f"B of the tuned DLS ({_fmt(dls_b)})")
+            )
+        opt = marks.get("ga_optimum") or {}
+        if xn in opt and yn in opt:
+            handles += ax.plot(
+                opt[xn],
+                opt[yn],
+                "*",
+                color="#e76f51",
+                markersize=14,
+                mec="black",
+                label=f"GA optimum, B = {_fmt(marks.get('ga_objective_b'))}",
+            )
+    if x_log:
+        ax.set_xscale("log")
+    if y_log:
+        ax.set_yscale("log")
+    ax.set_xlabel(xn)
+    ax.set_ylabel(yn)
+    ax.grid(False)
+    fixed = ", ".join(f"{k} = {_fmt(v)}" for k, v in (data.get("fixed") or {}).items())
+    fig.suptitle(
+        f"Objective landscape — {data.get('method')} ({x.size} x {y.size} cells{'; ' + fixed if fixed else ''})", fontsize=10
+    )
+    ax.legend(handles=handles, loc="upper right", fontsize=8, facecolor="0.3", labelcolor="white", framealpha=0.8)
+    return fig
+
+
+def render_landscape_figure(data: dict[str, Any], fmt: str = "svg") -> bytes:
+    return render(fig_landscape(data), fmt)
 
 
 class LRUCache:

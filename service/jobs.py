@@ -29,7 +29,7 @@ from engine.inverses import METHODS
 from engine.tuning import MapFn, check_bounds, improvement_percent
 from service import queue
 from service.convert import build_task, clean, field_path, metrics_out, resolve_robot
-from service.db import Database, is_locked, unavailable_reason
+from service.db import Database, is_database_fault, unavailable_reason
 from service.errors import ApiError, ApiValidationError
 from service.models import TuningJob
 from service.schemas import TuningJobRequest
@@ -87,11 +87,6 @@ def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
         raise ApiValidationError(f"ga: {msg}", [{"loc": ["body", "ga"], "msg": msg}])
 
 
-def is_database_fault(exc: BaseException) -> bool:
-    """A fault of the database (worth waiting out), as opposed to an error of the job itself."""
-    return is_locked(exc) or unavailable_reason(exc) is not None
-
-
 def with_retries(fn: Callable[[], T], stop: threading.Event, deadline_s: float, what: str) -> T | None:
     """``fn()``, retried with jittered backoff while the database is faulty; None if ``stop`` is
     set or ``deadline_s`` passes first."""
@@ -112,14 +107,22 @@ def with_retries(fn: Callable[[], T], stop: threading.Event, deadline_s: float, 
 
 
 def _progress(
-    p: TuneProgress, phase: str, offset: int, total: int, evaluations_before: int, history: list[dict[str, Any]]
+    p: TuneProgress,
+    phase: str,
+    role: str,
+    offset: int,
+    total: int,
+    evaluations_before: int,
+    history: list[dict[str, Any]],
+    attempt: int,
 ) -> dict[str, Any]:
     """Progress of the running job; ``history`` (one row per finished generation and phase, for
-    the convergence figure) is kept in it while the job runs."""
+    the per-phase history, the event stream and the convergence figure) is kept in it."""
     history.append(
         clean(
             {
                 "phase": phase,
+                "role": role,
                 "generation": p.generation,
                 "best": p.best_objective_b,
                 "mean": p.mean_objective_b,
@@ -135,6 +138,7 @@ def _progress(
             "best_objective_b": p.best_objective_b,
             "best_params": p.best_params,
             "phase": phase,
+            "attempt": attempt,  # the history below is this attempt's (event ids carry it)
         }
     )
     progress["history"] = history  # rows were cleaned as they were added
@@ -199,9 +203,9 @@ def run_job(
     total = gens * len(phases)
     history: list[dict[str, Any]] = []
 
-    def make_callback(phase: str, offset: int, evaluations_before: int) -> Callable[[TuneProgress], bool]:
+    def make_callback(phase: str, role: str, offset: int, evaluations_before: int) -> Callable[[TuneProgress], bool]:
         def callback(p: TuneProgress) -> bool:
-            progress = _progress(p, phase, offset, total, evaluations_before, history)
+            progress = _progress(p, phase, role, offset, total, evaluations_before, history, claim.attempts)
             log.info(
                 "job %s: %s generation %d/%d, best B %.6g, %d feasible",
                 claim.job_id,
@@ -268,7 +272,7 @@ def run_job(
                 attitude_term=body.objective.attitude_term,
                 task_aggregation=body.objective.task_aggregation,
                 feedback_gain=body.feedback_gain,
-                callback=make_callback(method if index == 0 else "dls", index * gens, evaluations),
+                callback=make_callback(method, "tuned" if index == 0 else "dls_baseline", index * gens, evaluations),
                 map_fn=map_fn,
                 chunks=chunks,
                 stop=stop,
@@ -316,11 +320,18 @@ def run_job(
             "seed": tuned.seed,
             "bounds": {k: list(v) for k, v in tuned.bounds.items()},
             "dls_baseline": (
-                {"lambda": baseline.best_params.get("lambda"), "objective_b": baseline.best_objective_b} if baseline else None
+                {
+                    "lambda": baseline.best_params.get("lambda"),
+                    "objective_b": baseline.best_objective_b,
+                    "warnings": baseline.warnings,
+                }
+                if baseline
+                else None
             ),
             "improvement_over_dls_percent": (
                 improvement_percent(baseline.best_objective_b, tuned.best_objective_b) if baseline else None
             ),
+            "warnings": tuned.warnings,
         }
     )
     final_progress = clean(
@@ -331,6 +342,7 @@ def run_job(
             "best_objective_b": tuned.best_objective_b,
             "best_params": tuned.best_params,
             "phase": "done",
+            "attempt": claim.attempts,
             "history": history,
         }
     )

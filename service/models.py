@@ -92,6 +92,20 @@ class TuningJob(Base):
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, onupdate=utcnow)
 
 
+class Landscape(Base):
+    """An objective landscape: ``grids`` holds its arrays (``service.storage``), ``summary`` the rest."""
+
+    __tablename__ = "landscapes"
+
+    id: Mapped[str] = mapped_column(String(64), primary_key=True, default=new_id)
+    robot_id: Mapped[str | None] = mapped_column(String(64), ForeignKey("robots.id", ondelete="SET NULL"), nullable=True)
+    request: Mapped[dict[str, Any]] = mapped_column(JSON)
+    summary: Mapped[dict[str, Any]] = mapped_column(JSON)
+    grids: Mapped[bytes] = mapped_column(LargeBinary)
+    elapsed_s: Mapped[float] = mapped_column(Float)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, index=True)
+
+
 class WebSession(Base):
     """A sign-in session of the web pages: the cookie holds a random token; its SHA-256 is the id.
     ``key_digest`` is the SHA-256 of the API key it was opened with (a session ends when that key

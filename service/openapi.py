@@ -16,9 +16,9 @@ BEARER = "bearerAuth"
 RETRY_AFTER = {"Retry-After": {"schema": {"type": "integer", "minimum": 1}, "description": "seconds to wait before retrying"}}
 
 #: Operations that store something (and answer 507 when the storage quota is spent).
-STORING = ("create_plan", "create_shortest_duration_plan", "create_robot", "create_tuning_job")
+STORING = ("create_plan", "create_shortest_duration_plan", "create_robot", "create_tuning_job", "create_landscape")
 #: Synchronous plan work behind the plan admission (503 with Retry-After when it is full).
-ADMITTED = ("create_plan", "create_shortest_duration_plan")
+ADMITTED = ("create_plan", "create_shortest_duration_plan", "create_landscape")
 
 #: operationId -> (status, {link name: (target operationId, {parameter: runtime expression})}).
 LINKS: dict[str, tuple[str, dict[str, tuple[str, dict[str, str]]]]] = {
@@ -27,6 +27,7 @@ LINKS: dict[str, tuple[str, dict[str, tuple[str, dict[str, str]]]]] = {
         {
             "GetPlan": ("get_plan", {"plan_id": "$response.body#/id"}),
             "GetPlanFigure": ("get_plan_figure", {"plan_id": "$response.body#/id"}),
+            "DeletePlan": ("delete_plan", {"plan_id": "$response.body#/id"}),
         },
     ),
     "create_shortest_duration_plan": (
@@ -44,6 +45,14 @@ LINKS: dict[str, tuple[str, dict[str, tuple[str, dict[str, str]]]]] = {
             "DeleteRobot": ("delete_robot", {"robot_id": "$response.body#/id"}),
         },
     ),
+    "create_landscape": (
+        "201",
+        {
+            "GetLandscape": ("get_landscape", {"landscape_id": "$response.body#/id"}),
+            "GetLandscapeHeatmap": ("get_landscape_heatmap", {"landscape_id": "$response.body#/id"}),
+            "DeleteLandscape": ("delete_landscape", {"landscape_id": "$response.body#/id"}),
+        },
+    ),
     "create_tuning_job": (
         "202",
         {
@@ -51,6 +60,8 @@ LINKS: dict[str, tuple[str, dict[str, tuple[str, dict[str, str]]]]] = {
             "GetTuningJobResult": ("get_tuning_job_result", {"job_id": "$response.body#/id"}),
             "GetTuningJobFigure": ("get_tuning_job_figure", {"job_id": "$response.body#/id"}),
             "CancelTuningJob": ("cancel_tuning_job", {"job_id": "$response.body#/id"}),
+            "GetTuningJobEvents": ("get_tuning_job_events", {"job_id": "$response.body#/id"}),
+            "DeleteTuningJob": ("delete_tuning_job", {"job_id": "$response.body#/id"}),
         },
     ),
 }

@@ -60,8 +60,9 @@ assert set(get_args(AggregationName)) == set(AGGREGATIONS) and set(get_args(Atti
 AttitudeTerm = Annotated[
     AttitudeTermName,
     Field(
-        description="attitude term of B: `angle` = rotation angle (rad); `eq18` = the paper's eq. 18 as printed, "
-        "sqrt(sum (dp_i dphi_i)^2) (m rad), which reproduces the paper's B values"
+        description="attitude term of B: `eq18` (default) = the paper's eq. 18 as printed, sqrt(sum (dp_i dphi_i)^2) "
+        "(m rad), which reproduces the paper's B values and its tuned-adaptive-versus-DLS margin; `angle` = the "
+        "attitude error as a rotation angle (rad), frame independent, under which that margin shrinks to a few per cent"
     ),
 ]
 
@@ -421,7 +422,7 @@ class PlanRequest(OneRobot):
     )
     aggregation: AggregationName = "max"
     weights: Weights = [0.5, 0.5]
-    attitude_term: AttitudeTerm = "angle"
+    attitude_term: AttitudeTerm = "eq18"
     replay: bool = Field(default=True, description="re-integrate the plan with solve_ivp and report the gaps")
 
 
@@ -436,7 +437,9 @@ class PlanMetrics(BaseModel):
     coupled_error_max_m_rad: float | None = Field(default=None, description="eq. 18 as printed: sqrt(sum (dp_i dphi_i)^2)")
     coupled_error_rms_m_rad: float | None = None
     coupled_error_final_m_rad: float | None = None
-    attitude_term: AttitudeTermName = "angle"
+    attitude_term: AttitudeTermName = Field(
+        default="angle", description="the attitude term B was formed with (plans stored before it was recorded: `angle`)"
+    )
     max_joint_speed_deg_s: float | None
     joint_speed_limit_deg_s: float | None = None
     joint_speed_limit_respected: bool
@@ -590,7 +593,7 @@ class GASettings(Input):
 class ObjectiveSettings(Input):
     weights: Weights = [0.5, 0.5]
     aggregation: AggregationName = "max"
-    attitude_term: AttitudeTerm = "angle"
+    attitude_term: AttitudeTerm = "eq18"
     task_aggregation: Literal["mean", "max"] = "mean"
 
 
@@ -603,7 +606,7 @@ class TuningJobRequest(OneRobot):
                     "robot_id": "table1",
                     "tasks": [PAPER_TASK_EXAMPLE],
                     "method": "adaptive",
-                    "bounds": {"lambda_max": [0.0001, 0.2], "epsilon": [0.0001, 0.3]},
+                    "bounds": {"lambda_max": [0.0001, 0.2], "epsilon": [0.0001, 1.0]},
                     "ga": {
                         "population": 40,
                         "generations": 50,
@@ -613,7 +616,7 @@ class TuningJobRequest(OneRobot):
                         "elitism": 1,
                         "seed": 1,
                     },
-                    "objective": {"weights": [0.5, 0.5], "aggregation": "max"},
+                    "objective": {"weights": [0.5, 0.5], "aggregation": "max", "attitude_term": "eq18"},
                     "compare_with_dls": True,
                 }
             ]
@@ -636,13 +639,43 @@ class TuningJobRequest(OneRobot):
     compare_with_dls: bool = Field(default=True, description="also tune constant-damping DLS with the same GA settings")
 
 
+class HistoryRecord(BaseModel):
+    generation: int = Field(description="0 is the initial population")
+    best: float | None = Field(description="best objective B so far (null while nothing is feasible)")
+    mean: float | None = Field(description="mean B of this generation's feasible individuals (null if none)")
+    feasible: int = Field(description="feasible individuals in this generation")
+
+
+PhaseRole = Literal["tuned", "dls_baseline"]
+
+
+class JobPhase(BaseModel):
+    """One GA run of a job: the tuned method, then (with ``compare_with_dls``) the DLS baseline."""
+
+    name: str = Field(description="the method this GA tunes")
+    role: PhaseRole = Field(description="`tuned` (the job's method) or `dls_baseline`")
+    generations: int = Field(description="generations of this GA (after the initial population)")
+    completed: int = Field(description="generations of this GA finished so far (0 to `generations`)")
+    history: list[HistoryRecord] = Field(description="one record per finished generation, from the initial population (0)")
+
+
 class JobProgress(BaseModel):
-    generation: int = 0
-    generations: int = 0
-    evaluations: int = 0
-    best_objective_b: float | None = None
-    best_params: dict[str, float] | None = None
-    phase: str | None = Field(default=None, description="which GA is running: the tuned method or the dls baseline")
+    generation: int = Field(default=0, description="generations finished, summed over the phases")
+    generations: int = Field(default=0, description="generations of the whole job, summed over the phases")
+    evaluations: int = Field(default=0, description="plans run so far (repeated genomes are not planned again)")
+    best_objective_b: float | None = Field(default=None, description="best B of the running phase so far")
+    best_params: dict[str, float] | None = Field(default=None, description="parameters of that best B")
+    phase: str | None = Field(default=None, description="the running phase's method, `done` once finished")
+    phases: list[JobPhase] = Field(default_factory=list, description="each GA of the job with its history")
+
+
+class JobLinks(BaseModel):
+    model_config = ConfigDict(populate_by_name=True)
+
+    self_: str = Field(alias="self", description="this job")
+    result: str = Field(description="its result (409 until it succeeded)")
+    events: str = Field(description="its Server-Sent Events (status changes and generations, live)")
+    convergence_figure: str = Field(description="its convergence figure (paper Fig. 7), SVG; `?format=png` for PNG")
 
 
 class TuningJobOut(BaseModel):
@@ -658,6 +691,7 @@ class TuningJobOut(BaseModel):
     created_at: datetime
     started_at: datetime | None
     finished_at: datetime | None
+    links: JobLinks
 
 
 class TuningJobList(BaseModel):
@@ -665,16 +699,10 @@ class TuningJobList(BaseModel):
     total: int
 
 
-class HistoryRecord(BaseModel):
-    generation: int
-    best: float | None
-    mean: float | None
-    feasible: int
-
-
 class DLSBaseline(BaseModel):
     lambda_: float | None = Field(alias="lambda", serialization_alias="lambda")
     objective_b: float | None
+    warnings: list[str] = Field(default_factory=list, description="e.g. the tuned lambda on a search bound")
 
     model_config = ConfigDict(populate_by_name=True)
 
@@ -688,6 +716,10 @@ class TuningJobResult(BaseModel):
     elapsed_s: float
     dls_baseline: DLSBaseline | None
     improvement_over_dls_percent: float | None
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="e.g. a tuned parameter on a search bound, where the optimum may lie beyond it: widen that bound",
+    )
 
 
 class Health(BaseModel):
@@ -696,3 +728,97 @@ class Health(BaseModel):
     database: str | None = None
     revision: str | None = None
     head: str | None = None
+
+
+# --- objective landscapes
+
+#: Methods with (at least) two parameters to span a landscape.
+LandscapeMethod = Literal["adaptive", "wdls", "svf"]
+
+
+class LandscapeAxis(Input):
+    name: str = Field(max_length=40, description="a parameter of the method, e.g. `lambda_max` or `epsilon`")
+    min: Magnitude = Field(description="first value (in the parameter's unit; > 0 on a log axis)")
+    max: Magnitude = Field(description="last value (> min)")
+    steps: int = Field(default=32, ge=2, le=128, description="values from min to max inclusive")
+    scale: Literal["linear", "log"] = Field(default="linear", description="spacing of the values")
+
+
+class LandscapeRequest(OneRobot):
+    model_config = ConfigDict(
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {
+                    "robot_id": "table1",
+                    "tasks": [PAPER_TASK_EXAMPLE],
+                    "method": "adaptive",
+                    "x": {"name": "lambda_max", "min": 0.001, "max": 0.2, "steps": 64},
+                    "y": {"name": "epsilon", "min": 0.001, "max": 1.0, "steps": 64},
+                }
+            ]
+        },
+    )
+
+    # Optional but not nullable: left out when not used (a null is refused like any wrong type).
+    robot_id: str = Field(  # type: ignore[assignment]
+        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
+    )
+    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
+    tasks: list[TaskIn] = Field(min_length=1, max_length=8, description="B is their mean (or max, see objective)")
+    method: LandscapeMethod = Field(default="adaptive", description="a method with two parameters or more")
+    x: LandscapeAxis = Field(description="the parameter along the grid's rows (first index)")
+    y: LandscapeAxis = Field(description="the parameter along the grid's columns (second index)")
+    fixed: dict[Annotated[str, Field(max_length=40)], Magnitude] | None = Field(
+        default=None, max_length=4, description="the method's other parameters (default: their defaults)"
+    )
+    objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings)
+    feedback_gain: float = Field(default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback")
+    tuning_job_id: str = Field(  # type: ignore[assignment]
+        default=None,
+        pattern=r"^[0-9a-f]{32}$",
+        description="a succeeded tuning job of the same method: its GA optimum is marked on the heatmap and "
+        "its tuned DLS objective drawn as a contour (where the method beats the tuned DLS)",
+    )
+
+
+class LandscapeAxisOut(BaseModel):
+    name: str
+    values: list[float] = Field(description="the parameter's values along this axis")
+    scale: Literal["linear", "log"]
+
+
+class LandscapeMarks(BaseModel):
+    tuning_job_id: str
+    ga_optimum: dict[str, float] = Field(description="the job's tuned parameters")
+    ga_objective_b: float | None = Field(description="the job's tuned B")
+    dls_objective_b: float | None = Field(description="B of the job's tuned DLS baseline (null without one)")
+
+
+class LandscapeLinks(BaseModel):
+    model_config = ConfigDict(populate_by_name=True)
+
+    self_: str = Field(alias="self", description="this landscape")
+    heatmap: str = Field(description="its heatmap figure, SVG; `?format=png` for PNG")
+
+
+class LandscapeOut(BaseModel):
+    id: str
+    robot_id: str | None
+    method: str
+    x: LandscapeAxisOut
+    y: LandscapeAxisOut
+    fixed: dict[str, float] = Field(description="the method's other parameters")
+    objective_b: list[list[float | None]] = Field(description="B per cell [x index][y index]; null where infeasible")
+    feasible: list[list[bool]] = Field(description="every task's plan finite and within the joint speed limit")
+    max_joint_speed_deg_s: list[list[float | None]] = Field(
+        description="the largest joint speed over the tasks, deg/s (null where a plan diverged)"
+    )
+    best_params: dict[str, float] = Field(description="the cell with the smallest B (empty if none is feasible)")
+    best_objective_b: float | None
+    feasible_fraction: float = Field(description="share of feasible cells, 0 to 1")
+    marks: LandscapeMarks | None
+    evaluations: int = Field(description="plans run: cells x tasks")
+    elapsed_s: float = Field(description="s, computing the grid")
+    created_at: datetime
+    links: LandscapeLinks

@@ -62,6 +62,15 @@ class Settings(BaseSettings):
     )
     cookie_secure: bool = Field(default=False, description="mark the sign-in cookie Secure (set it when clients use HTTPS)")
     session_hours: float = Field(default=12.0, gt=0, le=24 * 365, description="lifetime of a web sign-in session")
+    sse_heartbeat_s: float = Field(
+        default=15.0, gt=0, le=300, description="seconds without events after which a job's event stream sends a heartbeat"
+    )
+    retention_days: float | None = Field(
+        default=None,
+        gt=0,
+        description="finished tuning jobs and plans older than this many days are deleted; unset: kept for ever",
+    )
+    retention_sweep_s: float = Field(default=600.0, gt=0, description="how often the API looks for expired jobs and plans")
 
     def pool_size(self) -> int:
         return self.db_pool_size or self.api_threads

@@ -17,8 +17,8 @@ from typing import Any
 from engine import warm_up
 from engine.tuning import MapFn, dask_map
 from service import queue
-from service.db import Database, unavailable_reason
-from service.jobs import is_database_fault, run_job
+from service.db import Database, is_database_fault, unavailable_reason
+from service.jobs import run_job
 from service.migrate import seed_presets
 from service.settings import Settings
 

@@ -126,11 +126,13 @@ def test_objective_aggregations_and_penalty():
         coupled_error_final=5e-6,
         joint_speed_limit_respected=np.array([True]),
     )
-    assert objective(m, Objective((0.5, 0.5), "max"))[0] == pytest.approx(0.007)
-    assert objective(m, Objective((0.5, 0.5), "final"))[0] == pytest.approx(0.004)
-    assert objective(m, Objective((0.5, 0.5), "rms"))[0] == pytest.approx(0.0055)
-    assert objective(m, Objective((1.0, 0.0), "max"))[0] == pytest.approx(0.004)
-    assert objective(m, Objective((0.5, 0.5), "max", "eq18"))[0] == pytest.approx(0.5 * 0.004 + 0.5 * 1e-5)
+    assert objective(m, Objective((0.5, 0.5), "max", "angle"))[0] == pytest.approx(0.007)
+    assert objective(m, Objective((0.5, 0.5), "final", "angle"))[0] == pytest.approx(0.004)
+    assert objective(m, Objective((0.5, 0.5), "rms", "angle"))[0] == pytest.approx(0.0055)
+    assert objective(m, Objective((1.0, 0.0), "max", "angle"))[0] == pytest.approx(0.004)
+    # eq. 18 as printed is the default
+    assert objective(m, Objective((0.5, 0.5), "max"))[0] == pytest.approx(0.5 * 0.004 + 0.5 * 1e-5)
+    assert objective(m, Objective((0.5, 0.5), "rms"))[0] == pytest.approx(0.5 * 0.003 + 0.5 * 8e-6)
     m.joint_speed_limit_respected = np.array([False])
     assert math.isinf(objective(m, Objective())[0])
     with pytest.raises(ValueError, match="aggregation"):
@@ -171,7 +173,8 @@ def test_metrics_respect_speed_limit_definition(robot, task):
     m = r.metrics
     assert m.max_joint_speed == pytest.approx(np.abs(r.qd).max())
     assert m.joint_speed_limit_respected == (m.max_joint_speed <= task.joint_speed_limit)
-    expected_b = 0.5 * m.position_error_max + 0.5 * m.attitude_error_max
+    expected_b = 0.5 * m.position_error_max + 0.5 * m.coupled_error_max  # eq. 18 as printed, the default
+    assert m.attitude_term == "eq18"
     assert (m.objective_b == pytest.approx(expected_b)) if m.joint_speed_limit_respected else math.isinf(m.objective_b)
 
 

@@ -80,13 +80,40 @@ def test_pluggable_map_and_chunks_give_the_same_result(robot, task, bowl):
     assert calls and all(c == 3 for c in calls)
 
 
+def test_an_optimum_on_a_search_bound_is_flagged(robot, task, bowl):
+    """The bowl's minimum (0.03, 0.2) lies outside these bounds: the GA ends on the bounds and
+    says so, naming the bound to widen; a bound at the edge of the valid range is not flagged;
+    an interior optimum has no warnings."""
+    capped = tune(robot, task, "adaptive", population=30, generations=30, seed=3, bounds={"epsilon": (0.05, 0.15)})
+    assert capped.best_params["epsilon"] == pytest.approx(0.15, abs=0.0015)
+    assert len(capped.warnings) == 1
+    assert "epsilon" in capped.warnings[0] and "upper search bound 0.15" in capped.warnings[0]
+    assert "widen bounds.epsilon" in capped.warnings[0]
+    floor = tune(robot, task, "adaptive", population=30, generations=30, seed=3, bounds={"lambda_max": (0.05, 0.1)})
+    assert any("lower search bound 0.05" in w and "lambda_max" in w for w in floor.warnings)
+    at_valid_edge = tune(robot, task, "adaptive", population=30, generations=30, seed=3, bounds={"lambda_max": (0.0, 0.02)})
+    assert at_valid_edge.best_params["lambda_max"] == pytest.approx(0.02, abs=2e-4)
+    assert any("lambda_max" in w for w in at_valid_edge.warnings)  # the upper bound 0.02 can be widened
+    assert tune(robot, task, "adaptive", population=40, generations=40, seed=3, mutation_probability=0.03).warnings == []
+    assert (
+        tuning.bound_warnings("adaptive", {"lambda_max": 0.0, "epsilon": 0.5}, {"lambda_max": (0.0, 1.0), "epsilon": (0.1, 1.0)})
+        == []
+    )
+    assert (
+        tuning.bound_warnings(
+            "adaptive", {"lambda_max": 10.0, "epsilon": 0.5}, {"lambda_max": (1.0, 10.0), "epsilon": (0.1, 1.0)}
+        )
+        == []
+    )
+
+
 def test_decode_and_bounds():
     bounds = {"lambda_max": (0.0, 1.0), "epsilon": (0.1, 0.3)}
     bits = np.array([[0] * 4 + [1] * 4, [1] * 4 + [0] * 4, [1, 0, 0, 0, 0, 0, 0, 1]], dtype=float)
     out = decode(bits, bounds, 4)
     np.testing.assert_allclose(out["lambda_max"], [0.0, 1.0, 8 / 15])
     np.testing.assert_allclose(out["epsilon"], [0.3, 0.1, 0.1 + 0.2 / 15])
-    assert check_bounds("adaptive", None) == {"lambda_max": (1e-4, 0.2), "epsilon": (1e-4, 0.3)}
+    assert check_bounds("adaptive", None) == {"lambda_max": (1e-4, 0.2), "epsilon": (1e-4, 1.0)}
     with pytest.raises(ValueError, match="lo must be < hi"):
         check_bounds("adaptive", {"epsilon": [0.2, 0.1]})
     with pytest.raises(ValueError, match=r"bounds\.epsilon"):

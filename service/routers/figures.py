@@ -46,7 +46,7 @@ class UnknownFigureError(ApiError):
         )
 
 
-def _image(request: Request, content: bytes, fmt: str, hit: bool, immutable: bool) -> Response:
+def image_response(request: Request, content: bytes, fmt: str, hit: bool, immutable: bool) -> Response:
     etag = '"' + hashlib.sha1(content).hexdigest() + '"'
     headers = {
         "ETag": etag,
@@ -119,7 +119,7 @@ def _compare_plans_figure(name: str, request: Request, ids: str, format: str) ->
         return figures.render_compare_figure(data, format)
 
     content, hit = figures.cached(("compare", name, tuple(plan_ids), format), render)
-    return _image(request, content, format, hit, immutable=True)
+    return image_response(request, content, format, hit, immutable=True)
 
 
 @router.get(
@@ -143,6 +143,10 @@ async def get_plan_figure(plan_id: PlanId, name: str, request: Request, format: 
 
 
 def _plan_figure(plan_id: PlanId, name: str, request: Request, format: str) -> Response:
+    with request.app.state.db.session() as session:  # a deleted plan's figures are gone too
+        if session.scalar(select(Plan.id).where(Plan.id == plan_id)) is None:
+            raise NotFoundError("plan", plan_id)
+
     def load() -> dict[str, Any]:
         with request.app.state.db.session() as session:
             row = session.get(Plan, plan_id)
@@ -153,7 +157,7 @@ def _plan_figure(plan_id: PlanId, name: str, request: Request, format: str) -> R
     content, hit = figures.cached(
         ("plan", plan_id, name, format), lambda: figures.render_plan_figure(figures.plan_data(plan_id, load), name, format)
     )
-    return _image(request, content, format, hit, immutable=True)
+    return image_response(request, content, format, hit, immutable=True)
 
 
 @router.get(
@@ -188,4 +192,4 @@ def _job_figure(job_id: JobId, name: str, request: Request, format: str) -> Resp
     progress = job["progress"] or {}
     version = (job["status"], progress.get("generation"), len(progress.get("history") or []), job["updated_at"])
     content, hit = figures.cached(("job", job_id, name, format, version), lambda: figures.render_job_figure(job, format))
-    return _image(request, content, format, hit, immutable=False)
+    return image_response(request, content, format, hit, immutable=False)

@@ -18,7 +18,7 @@ from typing import Annotated, Any
 import numpy as np
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import func, select
+from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
 from engine import PlanResult, RobotModel, make_inverse, plan, replay
@@ -277,3 +277,17 @@ def get_plan(plan_id: PlanId, session: SessionDep, fields: FieldsQuery = None) -
     return Response(
         plan_json(summary, {name: parts[name] for name in PLAN_SECTIONS if name in sections}), media_type="application/json"
     )
+
+
+@router.delete(
+    "/{plan_id:id}",
+    operation_id="delete_plan",
+    status_code=status.HTTP_204_NO_CONTENT,
+    summary="Delete a stored plan",
+    description="204 once deleted; 404 for an unknown id. Its figures are no longer served.",
+    responses=responses(404),
+)
+def delete_plan(plan_id: PlanId, session: SessionDep) -> Response:
+    if session.execute(delete(Plan).where(Plan.id == plan_id)).rowcount == 0:  # type: ignore[attr-defined]
+        raise NotFoundError("plan", plan_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -4,10 +4,10 @@ poll, read the result, cancel. Workers run them (``spacearm worker``)."""
 from __future__ import annotations
 
 import hashlib
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Query, Request, Response, status
-from sqlalchemy import func, select
+from sqlalchemy import delete, func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -19,7 +19,19 @@ from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFou
 from service.jobs import MAX_JOB_JOINT_STEPS, validate_request
 from service.models import TuningJob
 from service.quota import check_quota
-from service.schemas import JobProgress, JobStatus, TuningJobList, TuningJobOut, TuningJobRequest, TuningJobResult
+from service.schemas import (
+    GASettings,
+    HistoryRecord,
+    JobLinks,
+    JobPhase,
+    JobProgress,
+    JobStatus,
+    PhaseRole,
+    TuningJobList,
+    TuningJobOut,
+    TuningJobRequest,
+    TuningJobResult,
+)
 
 router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"], route_class=SessionRoute)
 
@@ -41,14 +53,68 @@ def replayed(job: TuningJob, key: str, fingerprint: str, response: Response) -> 
     return job_out(job)
 
 
+def _role(row: dict[str, Any], method: str, restarts: int) -> str:
+    """The phase role of a history row; rows of older workers have no role: they go by name
+    (and, when the tuned method is DLS itself, by the restart of the generations at 0)."""
+    if "role" in row:
+        return str(row["role"])
+    if row.get("phase") == "dls" and (method != "dls" or restarts > 1):
+        return "dls_baseline"
+    return "tuned"
+
+
+def job_phases(request: dict[str, Any], history: list[dict[str, Any]]) -> list[JobPhase]:
+    """The GA runs of a job (its method, then the DLS baseline if asked) with their history."""
+    method = str(request.get("method", "adaptive"))
+    generations = int((request.get("ga") or {}).get("generations", GASettings().generations))
+    roles: list[tuple[str, PhaseRole]] = [(method, "tuned")]
+    if request.get("compare_with_dls", True):
+        roles.append(("dls", "dls_baseline"))
+    by_role: dict[str, list[HistoryRecord]] = {}
+    restarts = 0
+    for row in history:
+        restarts += row.get("generation") == 0
+        record = HistoryRecord.model_validate({k: row.get(k) for k in ("generation", "best", "mean", "feasible")})
+        by_role.setdefault(_role(row, method, restarts), []).append(record)
+    return [
+        JobPhase(
+            name=name,
+            role=role,
+            generations=generations,
+            completed=max((r.generation for r in by_role.get(role, [])), default=0),
+            history=by_role.get(role, []),
+        )
+        for name, role in roles
+    ]
+
+
+def job_links(job_id: str) -> JobLinks:
+    base = f"/v1/tuning-jobs/{job_id}"
+    return JobLinks.model_validate(
+        {
+            "self": base,
+            "result": f"{base}/result",
+            "events": f"{base}/events",
+            "convergence_figure": f"{base}/figures/convergence",
+        }
+    )
+
+
 def job_out(job: TuningJob) -> TuningJobOut:
-    progress = job.progress or {"generation": 0, "generations": 0, "evaluations": 0}
+    stored = dict(job.progress or {})
+    phases = job_phases(job.request, stored.pop("history", None) or [])
+    progress = {
+        **stored,
+        "generation": sum(p.completed for p in phases),
+        "generations": sum(p.generations for p in phases),
+        "evaluations": stored.get("evaluations", 0),
+    }
     return TuningJobOut(
         id=job.id,
         status=job.status,  # type: ignore[arg-type]
         robot_id=job.robot_id,
         method=str(job.request.get("method", "adaptive")),
-        progress=JobProgress(**progress),
+        progress=JobProgress(**progress, phases=phases),
         attempts=job.attempts,
         max_attempts=job.max_attempts,
         cancel_requested=job.cancel_requested,
@@ -56,6 +122,7 @@ def job_out(job: TuningJob) -> TuningJobOut:
         created_at=job.created_at,
         started_at=job.started_at,
         finished_at=job.finished_at,
+        links=job_links(job.id),
     )
 
 
@@ -204,3 +271,22 @@ def cancel_tuning_job(job_id: JobId, session: SessionDep, request: Request) -> T
     queue.request_cancel(db, job_id)
     session.expire_all()
     return job_out(_load(session, job_id))
+
+
+@router.delete(
+    "/{job_id:id}",
+    operation_id="delete_tuning_job",
+    status_code=status.HTTP_204_NO_CONTENT,
+    summary="Delete a tuning job (a queued or running one is cancelled first)",
+    description="204 once deleted; 404 for an unknown id. A running job's worker notices within about a second "
+    "that the job is gone and stops its GA.",
+    responses=responses(404),
+)
+def delete_tuning_job(job_id: JobId, session: SessionDep, request: Request) -> Response:
+    job = _load(session, job_id)
+    running = job.status not in queue.TERMINAL
+    session.rollback()  # end the read: SQLite cannot turn a read that another write overtook into a write
+    if running:
+        queue.request_cancel(request.app.state.db, job_id)
+    session.execute(delete(TuningJob).where(TuningJob.id == job_id))
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,42 +1,87 @@
-// spacearm job page: follows the job (a file, not inline: the pages' CSP allows scripts from this site only)
+// spacearm job page: follows the job over its Server-Sent Events stream (a file, not inline: the
+// pages' CSP allows scripts from this site only).
+//
+// The convergence figure is re-rendered at most one at a time: a generation that arrives while a
+// render is loading only marks the newest version wanted, and that one is loaded next, so renders
+// never queue behind each other and the figure trails the job by about one render.
 (function () {
   var jobId = document.body.dataset.jobId;
-  var last = null;
+  var base = "/v1/tuning-jobs/" + jobId;
+  var img = document.getElementById("convergence");
+  var figure = {loading: false, wanted: null, shown: null, since: {}};
+  window.spacearmFigureLags = [];  // seconds from an event to its figure on screen (read by the browser test)
+
   function fmt(x) { return (x === null || x === undefined) ? "—" : Number(x).toPrecision(4); }
   function params(p) { return p ? Object.keys(p).map(function (k) { return k + "=" + fmt(p[k]); }).join(" ") : ""; }
-  function poll() {
-    fetch("/v1/tuning-jobs/" + jobId, {headers: {"accept": "application/json"}})
-      .then(function (r) { return r.json(); })
-      .then(function (job) {
-        var p = job.progress || {};
-        document.getElementById("job-status").textContent = job.status;
-        document.getElementById("job-progress").textContent = "generation " + (p.generation || 0) + " / " + (p.generations || 0);
-        document.getElementById("job-bar").style.width = (p.generations ? 100 * p.generation / p.generations : 0) + "%";
-        document.getElementById("job-phase").textContent = p.phase || "—";
-        document.getElementById("job-best").textContent = fmt(p.best_objective_b);
-        document.getElementById("job-params").textContent = params(p.best_params);
-        document.getElementById("job-evals").textContent = p.evaluations || 0;
-        if (job.error) { var e = document.getElementById("job-error"); e.hidden = false; e.textContent = job.error; }
-        var stamp = job.status + ":" + p.generation + ":" + p.phase;
-        if (stamp !== last) {
-          last = stamp;
-          document.getElementById("convergence").src = "/v1/tuning-jobs/" + jobId + "/figures/convergence?v=" + encodeURIComponent(stamp);
-        }
-        if (job.status === "succeeded") {
-          fetch("/v1/tuning-jobs/" + jobId + "/result").then(function (r) { return r.json(); }).then(function (res) {
-            var d = res.dls_baseline;
-            document.getElementById("job-result").innerHTML = "";
-            var t = document.createElement("p");
-            t.id = "job-result-text";
-            t.textContent = "Result: B = " + fmt(res.best_objective_b) + " with " + params(res.best_params) +
-              (d ? "; DLS baseline B = " + fmt(d.objective_b) + " (lambda=" + fmt(d.lambda) + "), improvement " +
-               fmt(res.improvement_over_dls_percent) + " %" : "");
-            document.getElementById("job-result").appendChild(t);
-          });
-        }
-        if (["succeeded", "failed", "cancelled"].indexOf(job.status) < 0) { setTimeout(poll, 1000); }
-      })
-      .catch(function () { setTimeout(poll, 2000); });
+  function text(id, value) { document.getElementById(id).textContent = value; }
+
+  function loadFigure() {
+    var version = figure.wanted;
+    if (figure.loading || version === null || version === figure.shown) { return; }
+    figure.loading = true;
+    var next = new Image();
+    next.onload = next.onerror = function () {
+      if (next.naturalWidth) {
+        img.src = next.src;
+        img.dataset.version = version;
+        window.spacearmFigureLags.push((performance.now() - figure.since[version]) / 1000);
+      }
+      figure.shown = version;
+      figure.loading = false;
+      loadFigure();  // a newer version may have been wanted meanwhile
+    };
+    next.src = base + "/figures/convergence?v=" + encodeURIComponent(version);
   }
-  poll();
+
+  function wantFigure(version) {
+    if (!(version in figure.since)) { figure.since[version] = performance.now(); }
+    figure.wanted = version;
+    loadFigure();
+  }
+
+  function showStatus(s) {
+    text("job-status", s.status);
+    text("job-progress", "generation " + (s.generation || 0) + " / " + (s.generations || 0) + " (all phases)");
+    document.getElementById("job-bar").style.width = (s.generations ? 100 * s.generation / s.generations : 0) + "%";
+    text("job-best", fmt(s.best_objective_b));
+    text("job-params", params(s.best_params));
+    text("job-evals", s.evaluations || 0);
+    if (s.error) { var e = document.getElementById("job-error"); e.hidden = false; e.textContent = s.error; }
+  }
+
+  function showResult() {
+    fetch(base + "/result").then(function (r) { return r.json(); }).then(function (res) {
+      var d = res.dls_baseline;
+      var t = document.createElement("p");
+      t.id = "job-result-text";
+      t.textContent = "Result: B = " + fmt(res.best_objective_b) + " with " + params(res.best_params) +
+        (d ? "; DLS baseline B = " + fmt(d.objective_b) + " (lambda=" + fmt(d.lambda) + "), improvement " +
+         fmt(res.improvement_over_dls_percent) + " %" : "") +
+        ((res.warnings || []).length ? " — " + res.warnings.join("; ") : "");
+      var box = document.getElementById("job-result");
+      box.innerHTML = "";
+      box.appendChild(t);
+    });
+  }
+
+  var stream = new EventSource(base + "/events");
+  stream.addEventListener("status", function (e) {
+    var s = JSON.parse(e.data);
+    showStatus(s);
+    wantFigure(s.status + ":" + s.generation);
+  });
+  stream.addEventListener("generation", function (e) {
+    var g = JSON.parse(e.data);
+    var phase = g.role === "dls_baseline" ? "DLS baseline" : g.phase;
+    text("job-phase", phase + ": generation " + g.generation + " / " + g.generations);
+    text("job-best", fmt(g.best));
+    wantFigure(e.lastEventId);
+  });
+  stream.addEventListener("end", function (e) {
+    stream.close();
+    var s = JSON.parse(e.data);
+    text("job-status", s.status);
+    wantFigure("end:" + s.status);
+    if (s.status === "succeeded") { showResult(); }
+  });
 })();

@@ -33,7 +33,7 @@ def test_health_and_ready(client: httpx.Client) -> None:
     assert client.get("/healthz").json()["status"] == "ok"
     ready = client.get("/readyz")
     assert ready.status_code == 200
-    assert ready.json()["revision"] == ready.json()["head"] == "0002"
+    assert ready.json()["revision"] == ready.json()["head"] == "0003"
     assert ready.json()["kernels"] == "ok"
 
 
@@ -213,8 +213,8 @@ def test_openapi_contract(client: httpx.Client) -> None:
 
 def test_plan_objective_attitude_term(client: httpx.Client) -> None:
     body = {"robot_id": "table1", "task": PAPER_TASK, "method": {"name": "dls", "params": {"lambda": 0.035}}, "replay": False}
-    angle = client.post("/v1/plans", json=body).json()["metrics"]
-    printed = client.post("/v1/plans", json={**body, "attitude_term": "eq18"}).json()["metrics"]
+    angle = client.post("/v1/plans", json={**body, "attitude_term": "angle"}).json()["metrics"]
+    printed = client.post("/v1/plans", json=body).json()["metrics"]  # eq. 18 as printed: the default
     assert angle["attitude_term"] == "angle" and printed["attitude_term"] == "eq18"
     expected = 0.5 * printed["position_error_max_m"] + 0.5 * printed["coupled_error_max_m_rad"]
     assert printed["objective_b"] == pytest.approx(expected)

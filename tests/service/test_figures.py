@@ -125,7 +125,7 @@ def test_job_convergence_figure(client: httpx.Client) -> None:
     assert job["status"] == "succeeded"
     root = assert_svg(client.get(f"/v1/tuning-jobs/{job_id}/figures/convergence"))
     text = svg_text(root)
-    assert "adaptive: best B" in text and "dls: best B" in text and "generation" in text
+    assert "adaptive: best B" in text and "DLS baseline: best B" in text and "generation" in text
     assert_png(client.get(f"/v1/tuning-jobs/{job_id}/figures/convergence", params={"format": "png"}))
     assert client.get(f"/v1/tuning-jobs/{job_id}/figures/convergence").headers["cache-control"] == "no-cache"
 

@@ -1,0 +1,181 @@
+"""Live progress of a tuning job as Server-Sent Events (FastAPI's own ``EventSourceResponse``).
+
+The stream reads the database (every :data:`POLL_S`), so it works with any number of API
+processes and workers. Events:
+
+- ``status`` (no id): a snapshot of the job (status, attempts, progress summary) when the
+  stream opens and whenever its status, attempt, cancellation or error changes;
+- ``generation`` (id ``<attempt>.<n>``, the n-th record of that attempt): one per finished
+  generation of each GA phase, with the phase, its generation count and B;
+- ``end`` (no id): the job's final status; the stream then closes.
+
+A comment line is sent after :attr:`Settings.sse_heartbeat_s` without events, so proxies keep
+the connection open. A reconnecting client (``Last-Event-ID`` header, or ``last_event_id``
+query parameter for a first connection) gets the generations after that id; an id from an
+earlier attempt (the job was retried after its worker died) replays the current attempt.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import time
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Header, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.sse import EventSourceResponse, ServerSentEvent
+from sqlalchemy import select
+
+from service.db import Database
+from service.deps import JobId, SessionRoute
+from service.errors import ApiValidationError, NotFoundError, responses
+from service.models import TuningJob
+from service.queue import TERMINAL
+from service.routers.tuning import job_phases
+
+router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"], route_class=SessionRoute)
+
+POLL_S = 0.5  # how often an open stream reads the job
+RETRY_MS = 2000  # how long a browser waits before reconnecting
+EVENT_ID = re.compile(r"^([0-9]{1,9})\.([0-9]{1,9})$")
+
+
+@dataclass
+class Snapshot:
+    status: str
+    attempts: int
+    cancel_requested: bool
+    error: str | None
+    updated_at: datetime | None
+    request: dict[str, Any]
+    progress: dict[str, Any] | None  # None: unchanged since the last read
+
+
+def read_job(db: Database, job_id: str, seen: datetime | None) -> Snapshot | None:
+    """The job's state; its progress (the large part) only if it changed since ``seen``."""
+    columns = (TuningJob.status, TuningJob.attempts, TuningJob.cancel_requested, TuningJob.error, TuningJob.updated_at)
+    with db.session() as session:
+        row = session.execute(select(*columns, TuningJob.request).where(TuningJob.id == job_id)).first()
+        if row is None:
+            return None
+        progress = None
+        if seen is None or row.updated_at != seen:
+            progress = session.scalar(select(TuningJob.progress).where(TuningJob.id == job_id)) or {}
+    return Snapshot(row.status, row.attempts, row.cancel_requested, row.error, row.updated_at, row.request, progress)
+
+
+@dataclass
+class StreamStart:
+    job_id: str
+    snapshot: Snapshot
+    after: tuple[int, int] | None  # (attempt, record) of the last event the client saw
+
+
+async def stream_start(
+    job_id: JobId,
+    request: Request,
+    last_event_id_header: Annotated[
+        str | None, Header(alias="Last-Event-ID", max_length=40, description="sent by a reconnecting EventSource")
+    ] = None,
+    last_event_id: Annotated[
+        str | None, Query(max_length=40, description="the last event id seen, for a first connection that resumes")
+    ] = None,
+) -> StreamStart:
+    """Load the job (404) and check the resume point (422) before the stream starts."""
+    snapshot = await run_in_threadpool(read_job, request.app.state.db, job_id, None)
+    if snapshot is None:
+        raise NotFoundError("tuning job", job_id)
+    given, loc = (last_event_id_header, ["header", "Last-Event-ID"])
+    if given is None:
+        given, loc = (last_event_id, ["query", "last_event_id"])
+    if given is None:
+        return StreamStart(job_id, snapshot, None)
+    match = EVENT_ID.match(given.strip())
+    progress = snapshot.progress or {}
+    attempt = int(progress.get("attempt", snapshot.attempts))
+    records = len(progress.get("history") or [])
+    if match is None or (int(match[1]), int(match[2])) > (attempt, records):
+        sent = f"its ids run from {attempt}.1 to {attempt}.{records}" if records else "it has sent no generation yet"
+        msg = f"unknown event id {given!r} (ids are <attempt>.<record>): {sent}"
+        raise ApiValidationError(f"{'.'.join(loc)}: {msg}", [{"loc": loc, "msg": msg}])
+    return StreamStart(job_id, snapshot, (int(match[1]), int(match[2])))
+
+
+def status_event(job_id: str, snap: Snapshot, progress: dict[str, Any]) -> ServerSentEvent:
+    phases = job_phases(snap.request, progress.get("history") or [])
+    data = {
+        "id": job_id,
+        "status": snap.status,
+        "attempts": snap.attempts,
+        "cancel_requested": snap.cancel_requested,
+        "error": snap.error,
+        "phase": progress.get("phase"),
+        "generation": sum(p.completed for p in phases),
+        "generations": sum(p.generations for p in phases),
+        "evaluations": progress.get("evaluations", 0),
+        "best_objective_b": progress.get("best_objective_b"),
+        "best_params": progress.get("best_params"),
+    }
+    return ServerSentEvent(event="status", data=data, retry=RETRY_MS)
+
+
+def generation_event(snap: Snapshot, attempt: int, number: int, row: dict[str, Any]) -> ServerSentEvent:
+    generations = int((snap.request.get("ga") or {}).get("generations", 0))
+    data = {k: row.get(k) for k in ("phase", "role", "generation", "best", "mean", "feasible")}
+    return ServerSentEvent(event="generation", id=f"{attempt}.{number}", data={**data, "generations": generations})
+
+
+@router.get(
+    "/{job_id:id}/events",
+    operation_id="get_tuning_job_events",
+    response_class=EventSourceResponse,
+    summary="Live progress of a tuning job (Server-Sent Events)",
+    description="A `text/event-stream`: `status` events (a snapshot when the stream opens and at every change of "
+    "status), one `generation` event per finished GA generation (id `<attempt>.<record>`, data: phase, role, "
+    "generation, generations, best and mean B, feasible count), then `end` with the final status, and the stream "
+    "closes. Heartbeat comments keep idle connections open. Resume with `Last-Event-ID` (an EventSource sends it "
+    "when it reconnects) or `?last_event_id=`; an id this job never sent is a 422.",
+    responses=responses(404, 422),
+)
+async def get_tuning_job_events(
+    start: Annotated[StreamStart, Depends(stream_start)], request: Request
+) -> AsyncIterator[ServerSentEvent]:
+    db: Database = request.app.state.db
+    heartbeat_s: float = request.app.state.settings.sse_heartbeat_s
+    snap = start.snapshot
+    progress = snap.progress or {}
+    attempt = int(progress.get("attempt", snap.attempts))
+    sent = start.after[1] if start.after is not None and start.after[0] == attempt else 0
+    shown: tuple[Any, ...] | None = None
+    quiet_since = time.monotonic()
+    while True:
+        if snap.progress is not None:
+            progress = snap.progress
+        if int(progress.get("attempt", snap.attempts)) != attempt:  # a retry starts its history anew
+            attempt, sent = int(progress.get("attempt", snap.attempts)), 0
+        history = progress.get("history") or []
+        for number in range(sent + 1, len(history) + 1):
+            yield generation_event(snap, attempt, number, history[number - 1])
+            quiet_since = time.monotonic()
+        sent = max(sent, len(history))
+        state = (snap.status, snap.attempts, snap.cancel_requested, snap.error)
+        if state != shown:
+            shown = state
+            yield status_event(start.job_id, snap, progress)
+            quiet_since = time.monotonic()
+        if snap.status in TERMINAL:
+            yield ServerSentEvent(event="end", data={"id": start.job_id, "status": snap.status})
+            return
+        if time.monotonic() - quiet_since >= heartbeat_s:
+            yield ServerSentEvent(comment="heartbeat")
+            quiet_since = time.monotonic()
+        await asyncio.sleep(POLL_S)
+        latest = await run_in_threadpool(read_job, db, start.job_id, snap.updated_at)
+        if latest is None:  # deleted while streaming
+            yield ServerSentEvent(event="end", data={"id": start.job_id, "status": "deleted"})
+            return
+        snap = latest
