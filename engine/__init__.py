@@ -21,8 +21,9 @@ from engine.inverses import (
 from engine.jacobian import GJMResult, generalized_jacobian
 from engine.kinematics import ForwardKinematics, State, forward_kinematics
 from engine.metrics import BatchMetrics, Metrics
-from engine.model import RobotModel, table1_robot
+from engine.model import RobotModel, table1_robot, urdf_robot
 from engine.planner import BatchResult, PlanResult, plan, plan_batch
+from engine.redundancy import JointCentering, MinBaseRotation, make_secondary
 from engine.replay import ReplayResult, replay
 from engine.trajectory import CartesianTask, paper_task
 from engine.tuning import Comparison, TuneProgress, TuneResult, compare, tune
@@ -39,7 +40,9 @@ __all__ = [
     "ForwardKinematics",
     "GJMResult",
     "InverseStep",
+    "JointCentering",
     "Metrics",
+    "MinBaseRotation",
     "PlainInverse",
     "PlanResult",
     "ReplayResult",
@@ -55,6 +58,7 @@ __all__ = [
     "forward_kinematics",
     "generalized_jacobian",
     "make_inverse",
+    "make_secondary",
     "method_names",
     "paper_task",
     "plan",
@@ -62,5 +66,6 @@ __all__ = [
     "replay",
     "table1_robot",
     "tune",
+    "urdf_robot",
     "warm_up",
 ]

@@ -26,6 +26,8 @@ from engine.spatial import FloatArray, exp_so3, is_rotation, log_so3, rpy_spaced
 
 Profile = Literal["trapezoidal", "quintic"]
 PROFILES: tuple[str, ...] = ("trapezoidal", "quintic")
+Tracks = Literal["pose", "position"]
+TRACKS: dict[str, int] = {"pose": 6, "position": 3}  # what a task tracks -> rows of the GJM it needs
 MAX_DURATION_S = 600.0
 MAX_STEPS = 20_000
 
@@ -54,7 +56,12 @@ class PathSamples(NamedTuple):
 @dataclass(frozen=True)
 class CartesianTask:
     """A point-to-point Cartesian task. SI units, rad; attitudes are rotation matrices
-    (end effector -> world). The base starts at rest at the origin with identity attitude."""
+    (end effector -> world). The base starts at rest at the origin with identity attitude.
+
+    ``tracks`` says what the planner follows: the whole ``"pose"`` (needs 6 joints or more) or
+    the ``"position"`` only (3 or more; the attitude path is then reported, not tracked).
+    ``joint_speed_limit`` (rad/s) applies to revolute joints, ``linear_joint_speed_limit``
+    (m/s, unlimited by default) to prismatic ones."""
 
     q0: FloatArray  # (n,) rad
     start_position: FloatArray  # (3,) m
@@ -66,6 +73,8 @@ class CartesianTask:
     dt: float = 0.25  # s
     profile: Profile = "trapezoidal"
     joint_speed_limit: float = math.radians(6.0)  # rad/s, symmetric
+    tracks: Tracks = "pose"
+    linear_joint_speed_limit: float = math.inf  # m/s, symmetric
     _phi: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -96,6 +105,12 @@ class CartesianTask:
             raise ParameterError("profile", f"must be one of {', '.join(PROFILES)}")
         if self.joint_speed_limit <= 0.0:
             raise ParameterError("joint_speed_limit", "must be > 0")
+        if self.tracks not in TRACKS:
+            raise ParameterError("tracks", f"must be one of {', '.join(TRACKS)}")
+        linear = float(self.linear_joint_speed_limit)
+        if math.isnan(linear) or linear <= 0.0:
+            raise ParameterError("linear_joint_speed_limit", "must be > 0 (inf for no limit)")
+        object.__setattr__(self, "linear_joint_speed_limit", linear)
         if self.n_steps > MAX_STEPS:
             raise ParameterError("dt", f"duration / dt gives {self.n_steps} steps, at most {MAX_STEPS} allowed")
         object.__setattr__(self, "_phi", log_so3(self.target_attitude @ self.start_attitude.T))
@@ -196,6 +211,8 @@ class CartesianTask:
             "dt": self.dt,
             "profile": self.profile,
             "joint_speed_limit": self.joint_speed_limit,
+            "linear_joint_speed_limit": self.linear_joint_speed_limit,
+            "tracks": self.tracks,
             "rotation_angle": float(np.linalg.norm(self._phi)),
         }
 

@@ -13,11 +13,14 @@ from sqlalchemy.orm import Session
 
 from engine import CartesianTask, Metrics, PlanResult, ReplayResult, RobotModel
 from engine.errors import ParameterError
+from engine.kinematics import as_state, forward_kinematics
+from engine.planner import check_task
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
+from engine.urdf import UrdfError
 from service import jsonio
 from service.errors import ApiValidationError, NotFoundError
 from service.models import Robot
-from service.schemas import RobotParams, TaskIn
+from service.schemas import RobotParams, RobotUrdfIn, TaskIn
 
 
 def clean(value: Any) -> Any:
@@ -90,6 +93,62 @@ def resolve_robot(session: Session, robot_id: str | None, inline: RobotParams | 
     return robot.id, robot_model(robot.parameters)
 
 
+def urdf_model(body: RobotUrdfIn, loc: tuple[str | int, ...] = ("body",)) -> RobotModel:
+    """The model of a URDF body; a URDF the engine refuses is a 422 naming the URDF element (in
+    the detail and in the problem's ``element`` member)."""
+    tool = None
+    if body.tool_position_m is not None or body.tool_attitude_quaternion is not None:
+        try:
+            rotation = quaternion_to_matrix(body.tool_attitude_quaternion) if body.tool_attitude_quaternion else np.eye(3)
+        except ValueError as exc:
+            path = [*loc, "tool_attitude_quaternion"]
+            raise ApiValidationError(f"tool_attitude_quaternion: {exc}", [{"loc": path, "msg": str(exc)}]) from None
+        tool = (np.asarray(body.tool_position_m or [0.0, 0.0, 0.0], dtype=float), rotation)
+    try:
+        return RobotModel.from_urdf(body.urdf, end_effector_link=body.end_effector_link, tool_offset=tool, name=body.name)
+    except UrdfError as exc:
+        field = "end_effector_link" if "end_effector_link" in exc.reason else "urdf"
+        error = ApiValidationError(f"invalid URDF: {exc}", [{"loc": [*loc, field], "msg": str(exc)}])
+        error.extra["element"] = exc.element
+        raise error from None
+
+
+def joint_positions(
+    model: RobotModel,
+    deg: list[float | None] | None,
+    m: list[float | None] | None,
+    fields: tuple[str, str],
+    loc: tuple[str | int, ...],
+) -> np.ndarray:
+    """``q (n,)`` (rad, m) from the API's two index-aligned lists ``fields`` (degrees for the
+    revolute joints, metres for the prismatic ones, null at the other joints)."""
+    n = model.n_joints
+    deg_field, m_field = fields
+    errors: list[dict[str, Any]] = []
+    for values, field in ((deg, deg_field), (m, m_field)):
+        if values is not None and len(values) != n:
+            errors.append({"loc": [*loc, field], "msg": f"expected {n} values (one per joint), got {len(values)}"})
+    if errors:
+        raise ApiValidationError(f"{errors[0]['loc'][-1]}: {errors[0]['msg']}", errors)
+    q = np.empty(n)
+    for j, link in enumerate(model.links):
+        field, other = (m_field, deg_field) if link.prismatic else (deg_field, m_field)
+        mine, theirs = (m, deg) if link.prismatic else (deg, m)
+        kind = "prismatic (m)" if link.prismatic else "revolute (deg)"
+        value = mine[j] if mine is not None else None
+        if value is None:
+            errors.append(
+                {"loc": [*loc, field, j], "msg": f"joint {j + 1} ({model.joint_names[j]}) is {kind}: give it in {field}"}
+            )
+            continue
+        if theirs is not None and theirs[j] is not None:
+            errors.append({"loc": [*loc, other, j], "msg": f"joint {j + 1} ({model.joint_names[j]}) is {kind}: null here"})
+        q[j] = value if link.prismatic else math.radians(value)
+    if errors:
+        raise ApiValidationError("; ".join(f"{e['loc'][-2]}[{e['loc'][-1]}]: {e['msg']}" for e in errors), errors)
+    return q
+
+
 def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("body", "task")) -> CartesianTask:
     names = {
         "q": "q0_deg",
@@ -101,16 +160,29 @@ def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("b
         "dt": "dt_s",
         "profile": "profile",
         "joint_speed_limit": "joint_speed_limit_deg_s",
+        "linear_joint_speed_limit": "joint_speed_limit_m_s",
+        "tracks": "tracks",
     }
+    q0 = joint_positions(model, task.q0_deg, task.q0_m, ("q0_deg", "q0_m"), loc)
+    if task.target_attitude_quaternion is None:
+        if task.tracks == "pose":
+            msg = "required for a pose task (a position task may leave it out)"
+            raise ApiValidationError(
+                f"invalid task: target_attitude_quaternion: {msg}", [{"loc": [*loc, "target_attitude_quaternion"], "msg": msg}]
+            )
+        attitude = forward_kinematics(model, as_state(model, q0)).ee_attitude
+    else:
+        try:
+            attitude = quaternion_to_matrix(np.asarray(task.target_attitude_quaternion, dtype=float))
+        except ValueError as exc:
+            where = [*loc, "target_attitude_quaternion"]
+            raise ApiValidationError(
+                f"invalid task: target_attitude_quaternion: {exc}", [{"loc": where, "msg": str(exc)}]
+            ) from None
     try:
-        attitude = quaternion_to_matrix(np.asarray(task.target_attitude_quaternion, dtype=float))
-    except ValueError as exc:
-        path = [*loc, "target_attitude_quaternion"]
-        raise ApiValidationError(f"invalid task: target_attitude_quaternion: {exc}", [{"loc": path, "msg": str(exc)}]) from None
-    try:
-        return CartesianTask.from_q0(
+        built = CartesianTask.from_q0(
             model,
-            np.radians(task.q0_deg),
+            q0,
             np.asarray(task.target_position_m, dtype=float),
             attitude,
             duration=task.duration_s,
@@ -118,10 +190,20 @@ def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("b
             dt=task.dt_s,
             profile=task.profile,
             joint_speed_limit=math.radians(task.joint_speed_limit_deg_s),
+            tracks=task.tracks,
+            linear_joint_speed_limit=task.joint_speed_limit_m_s if task.joint_speed_limit_m_s is not None else math.inf,
         )
+        check_task(model, built)
+        return built
     except ParameterError as exc:
-        api_field = names.get(exc.field, exc.field)
-        path = [*loc, api_field]
+        path: list[str | int]
+        if exc.field.startswith("q0["):  # a joint outside its limits: its unit's list
+            j = int(exc.field[3:-1])
+            api_field = "q0_m" if model.links[j].prismatic else "q0_deg"
+            path = [*loc, api_field, j]
+        else:
+            api_field = names.get(exc.field, exc.field)
+            path = [*loc, api_field]
         raise ApiValidationError(f"invalid task: {api_field}: {exc.reason}", [{"loc": path, "msg": exc.reason}]) from None
 
 
@@ -146,17 +228,31 @@ def metrics_out(m: Metrics) -> dict[str, Any]:
             "time_of_min_singular_value_s": m.time_of_min_singular_value,
             "min_abs_det_gjm": m.min_abs_det_J_g,
             "time_of_min_abs_det_gjm_s": m.time_of_min_abs_det_J_g,
+            "tracks": m.tracks,
+            "max_linear_joint_speed_m_s": m.max_linear_joint_speed,
+            "joint_speed_limit_m_s": m.linear_joint_speed_limit,
+            "position_limits_respected": m.position_limits_respected,
+            "position_limit_joint": m.position_limit_joint + 1 if m.position_limit_joint >= 0 else None,
+            "time_position_limit_left_s": m.time_position_limit_left,
+            "base_attitude_change_max_rad": m.base_rotation_max,
+            "base_attitude_change_final_rad": m.base_rotation_final,
         }
     )
 
 
-def trajectory_out(r: PlanResult) -> dict[str, np.ndarray]:
+def trajectory_out(r: PlanResult, prismatic: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The stored and returned trajectory: numpy arrays (written by :mod:`service.jsonio`, NaN as
-    null)."""
+    null). With ``prismatic (n,)`` flags, those joints' columns are NaN in the degree arrays and
+    filled (m, m/s) in ``joint_displacements_m`` and ``joint_velocities_m_s``."""
+    joints: dict[str, np.ndarray] = {"joint_angles_deg": np.degrees(r.q), "joint_velocities_deg_s": np.degrees(r.qd)}
+    if prismatic is not None and np.any(prismatic):
+        joints["joint_angles_deg"][:, prismatic] = np.nan
+        joints["joint_velocities_deg_s"][:, prismatic] = np.nan
+        joints["joint_displacements_m"] = np.where(prismatic, r.q, np.nan)
+        joints["joint_velocities_m_s"] = np.where(prismatic, r.qd, np.nan)
     return {
         "t_s": r.t,
-        "joint_angles_deg": np.degrees(r.q),
-        "joint_velocities_deg_s": np.degrees(r.qd),
+        **joints,
         "base_position_m": r.base_position,
         "base_attitude_quaternion": _quats(r.base_attitude),
         "ee_position_m": r.ee_position,

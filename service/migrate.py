@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from pathlib import Path
 
 from alembic import command
@@ -12,11 +14,21 @@ from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
 
 import migrations
-from engine import table1_robot
+from engine import RobotModel, table1_robot, urdf_robot
+from engine.model import URDF_PRESETS
 from service.db import Database, ensure_sqlite_dir
 from service.models import Robot
 
 PRESET_ROBOT_ID = "table1"
+
+
+#: The robots every database starts with: the paper's Table-1 robot and the URDF examples (a
+#: 7-joint arm on a spacecraft, a 3-joint arm), built only when missing (reading a URDF imports
+#: its parser, about a second).
+PRESET_ROBOTS: dict[str, Callable[[], RobotModel]] = {
+    PRESET_ROBOT_ID: table1_robot,
+    **{name: functools.partial(urdf_robot, name) for name in URDF_PRESETS},
+}
 
 
 def alembic_config(url: str) -> Config:
@@ -45,11 +57,12 @@ def current_revision(engine: Engine) -> str | None:
 
 
 def seed_presets(db: Database) -> None:
-    """Insert the Table-1 robot preset if it is missing (idempotent)."""
-    try:
-        with db.session() as session:
-            if session.scalar(select(Robot.id).where(Robot.id == PRESET_ROBOT_ID)) is None:
-                model = table1_robot()
-                session.add(Robot(id=PRESET_ROBOT_ID, name=model.name, parameters=model.to_dict(), preset=True))
-    except IntegrityError:  # another process seeded it at the same time
-        pass
+    """Insert the preset robots that are missing (idempotent)."""
+    for robot_id, build in PRESET_ROBOTS.items():
+        try:
+            with db.session() as session:
+                if session.scalar(select(Robot.id).where(Robot.id == robot_id)) is None:
+                    model = build()
+                    session.add(Robot(id=robot_id, name=model.name, parameters=model.to_dict(), preset=True))
+        except IntegrityError:  # another process seeded it at the same time
+            pass

@@ -18,7 +18,7 @@ from fastapi import APIRouter, Query, Response, status
 from sqlalchemy import Text, cast, func, select
 from sqlalchemy.orm import Session
 
-from engine import PlanResult, make_inverse, plan, replay
+from engine import PlanResult, make_inverse, make_secondary, plan, replay
 from engine.errors import ParameterError
 from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
@@ -149,6 +149,7 @@ def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tup
     task = build_task(model, body.task)
     inverse = check_method(body.method.name, body.method.params)
     try:
+        secondary = make_secondary(body.secondary.objective, body.secondary.gain) if body.secondary is not None else None
         start = time.perf_counter()
         result = plan(
             model,
@@ -158,6 +159,7 @@ def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tup
             weights=(body.weights[0], body.weights[1]),
             aggregation=body.aggregation,
             attitude_term=body.attitude_term,
+            secondary=secondary,
         )
         skipped = replay_skip_reason(result, settings.max_replay_steps) if body.replay else None
         checked = replay(model, result) if body.replay and skipped is None else None
@@ -167,11 +169,17 @@ def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tup
         raise ApiValidationError(str(exc), [{"loc": loc, "msg": exc.reason}]) from None
     except ValueError as exc:
         raise ApiValidationError(str(exc), [{"loc": ["body"], "msg": str(exc)}]) from None
-    trajectory = trajectory_out(result)
+    trajectory = trajectory_out(result, model.prismatic)
     row = Plan(
         robot_id=robot_id,
         request=clean(body.model_dump(mode="json")),
-        method=clean({"name": result.method, "params": result.params}),
+        method=clean(
+            {
+                "name": result.method,
+                "params": result.params,
+                **({"secondary": {"objective": secondary.name, "gain": secondary.gain}} if secondary is not None else {}),
+            }
+        ),
         success=result.success,
         message=result.message,
         metrics=metrics_out(result.metrics),

@@ -1,4 +1,4 @@
-"""Task presets (the paper's detection line and variants)."""
+"""Task presets (the paper's detection line and variants, and lines for the URDF example robots)."""
 
 from __future__ import annotations
 
@@ -27,6 +27,38 @@ PRESETS: dict[str, TaskPreset] = {
         description="The paper's detection line with dt 0.05 s",
         robot_id="table1",
         task=TaskIn(**{**PAPER_TASK_EXAMPLE, "dt_s": 0.05}),
+    ),
+    "arm7-line": TaskPreset(
+        name="arm7-line",
+        description="The 7-joint arm on its spacecraft (URDF example): a 0.37 m line with a 20 deg turn in 20 s, "
+        "6 deg/s limit; plan it with and without the secondary objective min_base_rotation",
+        robot_id="arm7",
+        task=TaskIn(
+            q0_deg=[0.0, 40.0, 0.0, 80.0, 0.0, 50.0, 0.0],
+            target_position_m=[0.8878, 0.3099, -0.5009],
+            target_attitude_quaternion=[0.482759, -0.411213, -0.51896, 0.573173],
+            duration_s=20.0,
+            ramp_time_s=2.0,
+            dt_s=0.25,
+            joint_speed_limit_deg_s=6.0,
+        ),
+    ),
+    "arm3-position": TaskPreset(
+        name="arm3-position",
+        description="The 3-joint arm (yaw, pitch, telescopic boom; URDF example) moves its tool 0.33 m in 20 s, "
+        "tracking the position only; 6 deg/s and 0.05 m/s limits",
+        robot_id="arm3",
+        task=TaskIn(
+            q0_deg=[0.0, 20.0, None],
+            q0_m=[None, None, 0.2],
+            tracks="position",
+            target_position_m=[1.5156, 0.3, 1.2288],
+            duration_s=20.0,
+            ramp_time_s=2.0,
+            dt_s=0.25,
+            joint_speed_limit_deg_s=6.0,
+            joint_speed_limit_m_s=0.05,
+        ),
     ),
 }
 
