@@ -61,12 +61,15 @@ def apply_inverse(method, params, J, U, s, V, xdot, qd, damping, scratch):
     ``V (n, m)`` of ``J (p, n)``; writes the effective ``damping (m,)``. ``scratch (2, 6)``."""
     m = s.shape[0]
     n = V.shape[0]
-    p = U.shape[0]
+    pose = U.shape[0] == 6
     proj = scratch[0]
     for i in range(m):
         acc = 0.0
-        for r in range(p):
+        for r in range(3):  # the linear part, then the angular part of a pose (constant trip counts)
             acc += U[r, i] * xdot[r]
+        if pose:
+            for r in range(3, 6):
+                acc += U[r, i] * xdot[r]
         proj[i] = acc
     gain = scratch[1]
     if method == SDLS:
