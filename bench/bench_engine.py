@@ -34,8 +34,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import pinocchio as pin
 from pinocchio_oracle import adaptive_joint_rates, build_pinocchio_model, pinocchio_configuration, pinocchio_plan
 
-from engine import compare, make_inverse, paper_task, plan, plan_batch, replay, table1_robot, tune, warm_up
+from engine import (
+    CartesianTask,
+    compare,
+    make_inverse,
+    make_secondary,
+    paper_task,
+    plan,
+    plan_batch,
+    replay,
+    table1_robot,
+    tune,
+    urdf_robot,
+    warm_up,
+)
+from engine.kinematics import as_state, forward_kinematics
 from engine.planner import default_threads
+from engine.spatial import exp_so3
 
 LAM_MAX, EPSILON = 0.0571, 0.0677
 
@@ -104,6 +119,35 @@ def largest_job_rss() -> dict[str, float]:
     return numbers
 
 
+def urdf_rows(rounds: int) -> list[tuple[str, float]]:
+    """µs per plan-step of the URDF examples: the 7-joint arm's line (with and without the
+    null-space objective) and the 3-joint arm's position task (a prismatic joint)."""
+    arm7, arm3 = urdf_robot("arm7"), urdf_robot("arm3")
+    q7 = np.radians([0.0, 40.0, 0.0, 80.0, 0.0, 50.0, 0.0])
+    fk7 = forward_kinematics(arm7, as_state(arm7, q7))
+    line = CartesianTask.from_q0(
+        arm7, q7, fk7.ee_position + [-0.2, 0.3, 0.1], exp_so3(np.array([0.0, 0.3, 0.2])) @ fk7.ee_attitude,
+        duration=20.0, ramp_time=2.0, dt=0.25,
+    )  # fmt: skip
+    q3 = np.array([0.0, math.radians(20.0), 0.2])
+    fk3 = forward_kinematics(arm3, as_state(arm3, q3))
+    reach = CartesianTask.from_q0(
+        arm3, q3, fk3.ee_position + [-0.1, 0.3, 0.1], fk3.ee_attitude, duration=20.0, ramp_time=2.0, dt=0.25, tracks="position"
+    )
+    inverse = make_inverse("adaptive", lambda_max=0.05, epsilon=0.05)
+    still = make_secondary("min_base_rotation", 0.5)
+    cases = [
+        ("arm7 line (7 joints)", arm7, line, None),
+        ("arm7 line, min_base_rotation", arm7, line, still),
+        ("arm3 position (R, R, P)", arm3, reach, None),
+    ]
+    rows = []
+    for name, model, task, secondary in cases:
+        t = median_time(lambda m=model, k=task, sec=secondary: plan(m, k, inverse, feedback_gain=1.0, secondary=sec), 5 * rounds)
+        rows.append((name, t / (task.n_steps + 1)))
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="fewer rounds, no largest-job RSS run")
@@ -153,6 +197,8 @@ def main() -> None:
     )
     print(f"compare (adaptive and DLS, the same GA): {t_compare:.3f} s")
     print(f"replay of the paper plan: {t_replay * 1e3:.2f} ms ({t_replay / (steps - 1) * 1e6:.1f} µs per step)")
+    for name, t in urdf_rows(rounds):
+        print(f"{name:34s} {t * 1e6:12.2f}  (plan, µs per plan-step)")
     single = rows[0][1]
     b64 = min(t for name, t in rows if name.startswith("plan_batch B=64"))
     print(f"targets: plan_batch B=64 >= 40x the anchor: {t_anchor / b64:.1f}x; plan >= 20x: {t_anchor / single:.1f}x")

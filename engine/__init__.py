@@ -23,9 +23,10 @@ from engine.jacobian import GJMResult, generalized_jacobian
 from engine.kinematics import ForwardKinematics, State, forward_kinematics
 from engine.landscape import Landscape, axis_values, landscape
 from engine.metrics import BatchMetrics, Metrics
-from engine.model import RobotModel, table1_robot
+from engine.model import RobotModel, table1_robot, urdf_robot
 from engine.paths import PATH_TYPES, ArcPath, LinePath, Path, RasterPath, WaypointPath, make_path
 from engine.planner import BatchResult, PlanResult, plan, plan_batch
+from engine.redundancy import JointCentering, MinBaseRotation, make_secondary
 from engine.replay import ReplayResult, replay
 from engine.shortest import DurationSearch, shortest_duration
 from engine.trajectory import CartesianTask, paper_task
@@ -46,9 +47,11 @@ __all__ = [
     "ForwardKinematics",
     "GJMResult",
     "InverseStep",
+    "JointCentering",
     "Landscape",
     "LinePath",
     "Metrics",
+    "MinBaseRotation",
     "Path",
     "PlainInverse",
     "PlanResult",
@@ -70,6 +73,7 @@ __all__ = [
     "landscape",
     "make_inverse",
     "make_path",
+    "make_secondary",
     "method_names",
     "paper_task",
     "plan",
@@ -78,5 +82,6 @@ __all__ = [
     "shortest_duration",
     "table1_robot",
     "tune",
+    "urdf_robot",
     "warm_up",
 ]

@@ -1,7 +1,8 @@
 """Singularity-robust inverses of the GJM: one protocol, small frozen strategies.
 
-Every strategy maps a Jacobian ``J (..., 6, n)`` and a twist ``xdot (..., 6)`` to joint rates
-``qd (..., n)``. Parameters may be scalars or arrays of shape ``(B,)`` matching a leading
+Every strategy maps a Jacobian ``J (..., p, n)`` and a task velocity ``xdot (..., p)`` to joint
+rates ``qd (..., n)``: ``p = 6`` rows for a twist ``[v; w]``, ``p = 3`` for a linear velocity (a
+task that tracks the position only). Parameters may be scalars or arrays of shape ``(B,)`` matching a leading
 batch axis, so one strategy object evaluates a whole GA population at once.
 
 The strategies are descriptions (a method number and its parameters); the mathematics lives
@@ -28,7 +29,7 @@ from engine.spatial import FloatArray
 
 
 class SVD(NamedTuple):
-    """Thin SVD ``J = U diag(s) Vt``: ``U (..., 6, m)``, ``s (..., m)`` descending, ``Vt (..., m, n)``."""
+    """Thin SVD ``J = U diag(s) Vt``: ``U (..., p, m)``, ``s (..., m)`` descending, ``Vt (..., m, n)``."""
 
     U: FloatArray
     s: FloatArray
@@ -37,22 +38,22 @@ class SVD(NamedTuple):
 
 def _jacobians(J: ArrayLike) -> tuple[FloatArray, tuple[int, ...]]:
     arr = np.asarray(J, dtype=float)
-    if arr.ndim < 2 or arr.shape[-2] != 6 or not 1 <= arr.shape[-1] <= 12:
-        raise ValueError(f"expected Jacobians of shape (..., 6, n) with 1 <= n <= 12, got {arr.shape}")
+    if arr.ndim < 2 or arr.shape[-2] not in (3, 6) or not 1 <= arr.shape[-1] <= 12:
+        raise ValueError(f"expected Jacobians of shape (..., 6, n) or (..., 3, n) with 1 <= n <= 12, got {arr.shape}")
     lead = arr.shape[:-2]
     flat: FloatArray = np.require(arr.reshape((-1,) + arr.shape[-2:]), np.float64, ["C", "W"])
     return flat, lead
 
 
 def thin_svd(J: ArrayLike) -> SVD:
-    """Thin SVD of ``J (..., 6, n)`` (n = 1..12, ``m = min(6, n)``) by the compiled one-sided
-    Jacobi kernel, each member cold-started; see :mod:`engine.kernels.svd`."""
+    """Thin SVD of ``J (..., p, n)`` (p = 6 or 3, n = 1..12, ``m = min(p, n)``) by the compiled
+    one-sided Jacobi kernel, each member cold-started; see :mod:`engine.kernels.svd`."""
     flat, lead = _jacobians(J)
-    batch, _, n = flat.shape
-    m = min(6, n)
-    U, s, V = np.empty((batch, 6, m)), np.empty((batch, m)), np.empty((batch, n, m))
+    batch, p, n = flat.shape
+    m = min(p, n)
+    U, s, V = np.empty((batch, p, m)), np.empty((batch, m)), np.empty((batch, n, m))
     svd_kernels.svd_many(flat, U, s, V)
-    return SVD(U.reshape(lead + (6, m)), s.reshape(lead + (m,)), np.swapaxes(V, -1, -2).reshape(lead + (m, n)))
+    return SVD(U.reshape(lead + (p, m)), s.reshape(lead + (m,)), np.swapaxes(V, -1, -2).reshape(lead + (m, n)))
 
 
 class InverseStep(NamedTuple):
@@ -69,7 +70,7 @@ class RobustInverse(Protocol):
     method_id: ClassVar[int]
 
     def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
-        """Joint rates for ``J (..., 6, n)``, ``xdot (..., 6)``."""
+        """Joint rates for ``J (..., p, n)``, ``xdot (..., p)``."""
         ...
 
     def params(self) -> dict[str, Any]:
@@ -90,15 +91,15 @@ def kernel_param_rows(inverse: RobustInverse, batch: int) -> FloatArray:
 
 
 def solve(inverse: RobustInverse, J: ArrayLike, xdot: ArrayLike) -> InverseStep:
-    """``inverse`` applied to ``J (..., 6, n)`` and ``xdot (..., 6)`` (leading axes broadcast;
+    """``inverse`` applied to ``J (..., p, n)`` and ``xdot (..., p)`` (leading axes broadcast;
     array parameters run along the flattened leading axes)."""
     J_arr = np.asarray(J, dtype=float)
     x_arr = np.asarray(xdot, dtype=float)
     lead = np.broadcast_shapes(J_arr.shape[:-2], x_arr.shape[:-1])
     flat, _ = _jacobians(np.broadcast_to(J_arr, lead + J_arr.shape[-2:]))
-    x_flat = np.require(np.broadcast_to(x_arr, lead + (6,)).reshape(-1, 6), np.float64, ["C", "W"])
-    batch, _, n = flat.shape
-    m = min(6, n)
+    batch, p, n = flat.shape
+    x_flat = np.require(np.broadcast_to(x_arr, lead + (p,)).reshape(-1, p), np.float64, ["C", "W"])
+    m = min(p, n)
     qd, damping, s = np.empty((batch, n)), np.empty((batch, m)), np.empty((batch, m))
     inverse_kernels.solve_many(inverse.method_id, kernel_param_rows(inverse, batch), flat, x_flat, qd, damping, s)
     return InverseStep(qd.reshape(lead + (n,)), damping.reshape(lead + (m,)))

@@ -40,12 +40,17 @@ def gjm_batch(
     return J, base_map
 
 
-def fixed_base_jacobian_batch(kin: Kinematics) -> FloatArray:
-    """Geometric Jacobian ``(B, 6, n)`` of the same chain with the base held fixed."""
+def fixed_base_jacobian_batch(kin: Kinematics, prismatic: ArrayLike | None = None) -> FloatArray:
+    """Geometric Jacobian ``(B, 6, n)`` of the same chain with the base held fixed (``prismatic
+    (n,)`` flags the sliding joints: their columns are ``[k; 0]``)."""
     k = kin.joint_axes
     J = np.empty((k.shape[0], 6, k.shape[1]))
     J[:, :3] = np.swapaxes(cross(k, kin.ee_position[:, None, :] - kin.joint_positions), 1, 2)
     J[:, 3:] = np.swapaxes(k, 1, 2)
+    if prismatic is not None:
+        slides = np.asarray(prismatic, dtype=bool)
+        J[:, :3, slides] = J[:, 3:, slides]
+        J[:, 3:, slides] = 0.0
     return J
 
 

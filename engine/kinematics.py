@@ -21,7 +21,8 @@ from engine.spatial import FloatArray, is_rotation
 class State:
     """Configuration of the free-floating robot.
 
-    ``q (n,)`` joint angles in rad, ``base_position (3,)`` base CoM in world (m),
+    ``q (n,)`` joint positions (rad for revolute joints, m for prismatic ones),
+    ``base_position (3,)`` base CoM in world (m),
     ``base_attitude (3, 3)`` rotation base -> world. Defaults: base at the origin, identity.
     """
 
@@ -34,7 +35,7 @@ class State:
         pos = np.asarray(self.base_position, dtype=float)
         att = np.asarray(self.base_attitude, dtype=float)
         if not np.all(np.isfinite(q)):
-            raise ParameterError("q", "every joint angle must be finite")
+            raise ParameterError("q", "every joint position must be finite")
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
             raise ParameterError("base_position", "expected 3 finite numbers")
         if not is_rotation(att):

@@ -18,9 +18,9 @@ import numpy as np
 
 from engine.errors import ParameterError
 from engine.inverses import check_param, make_inverse, method_spec
-from engine.metrics import Objective, batch_metrics
+from engine.metrics import Objective
 from engine.model import RobotModel
-from engine.planner import evaluate
+from engine.planner import evaluate, task_metrics
 from engine.spatial import FloatArray
 from engine.trajectory import CartesianTask
 from engine.tuning import TASK_AGGREGATIONS
@@ -122,7 +122,7 @@ def landscape(
     feasible = np.ones(cells, dtype=bool)
     for k, task in enumerate(task_list):
         raw = evaluate(model, task, inverse, cells, feedback_gain=feedback_gain, threads=threads, stop=stop)
-        metrics = batch_metrics(raw, task.joint_speed_limit, objective)
+        metrics = task_metrics(raw, task, objective)
         per_task_b[k] = metrics.objective_b
         feasible &= np.isfinite(metrics.objective_b)
         speed = np.fmax(speed, np.where(metrics.finite, metrics.max_joint_speed, np.nan))

@@ -2,7 +2,9 @@
 
 ``B = w1 dp + w2 dp_phi + P_l``: ``dp`` is the end-effector position error (m), aggregated over
 the path (``max`` by default, ``rms`` or ``final``: the paper does not say which); ``P_l`` is
-+inf when any commanded joint speed exceeds the limit, else 0. The attitude term ``dp_phi`` has
++inf when any commanded joint speed exceeds its limit (rad/s for revolute joints, m/s for
+prismatic ones) or a joint leaves its position limits, else 0. A task that tracks the position
+only has no attitude term (its attitude is not followed). The attitude term ``dp_phi`` has
 two readings (``attitude_term``):
 
 - ``"eq18"`` (default): eq. 18 as printed, ``sqrt(sum_i (dp_i dphi_i)^2)`` (m rad), the
@@ -61,6 +63,16 @@ class Metrics:
     attitude_term: str
     finite: bool  # every sample finite (the plan did not diverge)
     time_diverged: float = math.nan  # s, the sample where a diverged plan stopped
+    max_linear_joint_speed: float = 0.0  # m/s, prismatic joints (0 without any)
+    max_linear_joint_speed_joint: int = -1  # 0-based joint index, -1 without prismatic joints
+    linear_joint_speed_limit: float = math.inf  # m/s
+    position_limits_respected: bool = True
+    position_limit_joint: int = -1  # 0-based, the first joint found outside its limits
+    time_position_limit_left: float = math.nan  # s
+    position_limit_excess: float = math.nan  # rad or m, that joint's largest excess
+    base_rotation_max: float = math.nan  # rad, the carrier's attitude change from its start
+    base_rotation_final: float = math.nan  # rad
+    tracks: str = "pose"
 
     @property
     def max_joint_speed_deg_s(self) -> float:
@@ -97,6 +109,16 @@ class BatchMetrics:
     attitude_term: str
     finite: np.ndarray
     time_diverged: FloatArray
+    max_linear_joint_speed: FloatArray | float = 0.0
+    max_linear_joint_speed_joint: np.ndarray | int = -1
+    linear_joint_speed_limit: float = math.inf
+    position_limits_respected: np.ndarray | bool = True
+    position_limit_joint: np.ndarray | int = -1
+    time_position_limit_left: FloatArray | float = math.nan
+    position_limit_excess: FloatArray | float = math.nan
+    base_rotation_max: FloatArray | float = math.nan
+    base_rotation_final: FloatArray | float = math.nan
+    tracks: str = "pose"
 
     def __len__(self) -> int:
         return int(self.objective_b.shape[0])
@@ -105,7 +127,7 @@ class BatchMetrics:
         values = {}
         for name in _METRIC_FIELDS:
             v = getattr(self, name)
-            values[name] = v[i].item() if isinstance(v, np.ndarray) else v
+            values[name] = v.item(i) if isinstance(v, np.ndarray) else v
         return Metrics(**values)
 
 
@@ -142,48 +164,74 @@ _METRIC_FIELDS = tuple(f.name for f in fields(Metrics))
 
 def objective(metrics: BatchMetrics | Metrics, settings: Objective) -> FloatArray:
     """The paper's ``B`` per plan from aggregated errors: ``w1 dp + w2 dp_phi`` with the
-    aggregation and attitude term of ``settings``; +inf where the speed limit is broken or the
-    plan is not finite."""
+    aggregation and attitude term of ``settings`` (``w1 dp`` alone for a position task); +inf
+    where a speed or position limit is broken or the plan is not finite."""
     w1, w2 = settings.weights
     position = np.asarray(getattr(metrics, f"position_error_{settings.aggregation}"), dtype=float)
-    term = "attitude_error" if settings.attitude_term == "angle" else "coupled_error"
-    attitude = np.asarray(getattr(metrics, f"{term}_{settings.aggregation}"), dtype=float)
-    b = w1 * position + w2 * attitude
-    ok = np.asarray(metrics.joint_speed_limit_respected, dtype=bool) & np.isfinite(b)
+    b = w1 * position
+    if metrics.tracks == "pose":
+        term = "attitude_error" if settings.attitude_term == "angle" else "coupled_error"
+        b = b + w2 * np.asarray(getattr(metrics, f"{term}_{settings.aggregation}"), dtype=float)
+    ok = (
+        np.asarray(metrics.joint_speed_limit_respected, dtype=bool)
+        & np.asarray(metrics.position_limits_respected, dtype=bool)
+        & np.isfinite(b)
+    )
     result: FloatArray = np.where(ok, b, np.inf)
     return result
 
 
-def batch_metrics(raw: FloatArray, joint_speed_limit: float, settings: Objective) -> BatchMetrics:
+def batch_metrics(
+    raw: FloatArray,
+    joint_speed_limit: float,
+    settings: Objective,
+    *,
+    linear_joint_speed_limit: float = math.inf,
+    tracks: str = "pose",
+) -> BatchMetrics:
     """Metrics of ``B`` plans from the planner kernel's metrics rows ``raw (B, N_METRICS)``
-    (:mod:`engine.kernels.plan`); ``settings`` say how ``B`` is formed."""
-    finite = raw[:, kp.FINITE] > 0.5
-    max_speed = raw[:, kp.MAX_SPEED]
-    speed_ok = finite & (max_speed <= joint_speed_limit)
+    (:mod:`engine.kernels.plan`); ``settings`` say how ``B`` is formed, ``tracks`` what the
+    plans followed."""
+    cols = raw.T.copy()  # one copy: each metric's column a contiguous row of its own
+    finite = cols[kp.FINITE] > 0.5
+    max_speed = cols[kp.MAX_SPEED]
+    max_linear = cols[kp.MAX_LIN_SPEED]
+    speed_ok = finite & (max_speed <= joint_speed_limit) & (max_linear <= linear_joint_speed_limit)
+    limit_joint = cols[kp.LIMIT_JOINT].astype(int)
     values = BatchMetrics(
-        position_error_max=raw[:, kp.POS_MAX].copy(),
-        position_error_rms=raw[:, kp.POS_RMS].copy(),
-        position_error_final=raw[:, kp.POS_FINAL].copy(),
-        attitude_error_max=raw[:, kp.ATT_MAX].copy(),
-        attitude_error_rms=raw[:, kp.ATT_RMS].copy(),
-        attitude_error_final=raw[:, kp.ATT_FINAL].copy(),
-        coupled_error_max=raw[:, kp.CPL_MAX].copy(),
-        coupled_error_rms=raw[:, kp.CPL_RMS].copy(),
-        coupled_error_final=raw[:, kp.CPL_FINAL].copy(),
-        max_joint_speed=max_speed.copy(),
-        max_joint_speed_joint=raw[:, kp.MAX_SPEED_JOINT].astype(int),
+        position_error_max=cols[kp.POS_MAX],
+        position_error_rms=cols[kp.POS_RMS],
+        position_error_final=cols[kp.POS_FINAL],
+        attitude_error_max=cols[kp.ATT_MAX],
+        attitude_error_rms=cols[kp.ATT_RMS],
+        attitude_error_final=cols[kp.ATT_FINAL],
+        coupled_error_max=cols[kp.CPL_MAX],
+        coupled_error_rms=cols[kp.CPL_RMS],
+        coupled_error_final=cols[kp.CPL_FINAL],
+        max_joint_speed=max_speed,
+        max_joint_speed_joint=cols[kp.MAX_SPEED_JOINT].astype(int),
         joint_speed_limit=float(joint_speed_limit),
         joint_speed_limit_respected=speed_ok,
-        min_singular_value=raw[:, kp.MIN_SIGMA].copy(),
-        time_of_min_singular_value=raw[:, kp.T_MIN_SIGMA].copy(),
-        min_abs_det_J_g=raw[:, kp.MIN_DET].copy(),
-        time_of_min_abs_det_J_g=raw[:, kp.T_MIN_DET].copy(),
+        min_singular_value=cols[kp.MIN_SIGMA],
+        time_of_min_singular_value=cols[kp.T_MIN_SIGMA],
+        min_abs_det_J_g=cols[kp.MIN_DET],
+        time_of_min_abs_det_J_g=cols[kp.T_MIN_DET],
         objective_b=np.empty(raw.shape[0]),
         weights=settings.weights,
         aggregation=settings.aggregation,
         attitude_term=settings.attitude_term,
         finite=finite,
-        time_diverged=raw[:, kp.T_DIVERGED].copy(),
+        time_diverged=cols[kp.T_DIVERGED],
+        max_linear_joint_speed=max_linear,
+        max_linear_joint_speed_joint=cols[kp.MAX_LIN_SPEED_JOINT].astype(int),
+        linear_joint_speed_limit=float(linear_joint_speed_limit),
+        position_limits_respected=limit_joint < 0,
+        position_limit_joint=limit_joint,
+        time_position_limit_left=cols[kp.T_LIMIT],
+        position_limit_excess=cols[kp.LIMIT_EXCESS],
+        base_rotation_max=cols[kp.BASE_ROT_MAX],
+        base_rotation_final=cols[kp.BASE_ROT_FINAL],
+        tracks=tracks,
     )
     values.objective_b[:] = objective(values, settings)
     return values

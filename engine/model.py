@@ -3,7 +3,13 @@
 Conventions (see README): link frames are parallel to the base frame at q = 0; ``a_i`` runs
 from joint i to the CoM of link i, ``b_i`` from the CoM of link i to joint i+1 (``b_0`` from the
 base CoM to joint 1, ``b_n`` from the last CoM to the end-effector point), both in link i's
-frame; inertias are about each CoM in the body's own frame. SI units throughout.
+frame at q = 0; inertias are about each CoM in the body's own frame. SI units throughout.
+
+Joints are revolute (``q_i`` in rad: link i turns about ``s_i``) or prismatic (``q_i`` in m: link
+i slides along ``s_i``, so its CoM is at ``a_i + s_i q_i`` from joint i), each with optional
+position limits ``lower <= q_i <= upper`` (rad or m; infinite when unlimited), which the planner
+checks. :meth:`RobotModel.from_urdf` builds a model from a URDF file and
+:meth:`RobotModel.to_urdf` writes one back (:mod:`engine.urdf`).
 """
 
 from __future__ import annotations
@@ -20,8 +26,10 @@ import numpy as np
 from engine.errors import ParameterError, finite_array
 from engine.kernels.chain import Chain
 from engine.spatial import FloatArray, is_rotation
+from engine.urdf import UrdfError, dict_to_urdf, urdf_element, urdf_to_dict
 
 MAX_JOINTS = 12
+JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic")
 
 
 def _frozen(arr: FloatArray) -> FloatArray:
@@ -40,10 +48,11 @@ def _mass(value: Any, field: str) -> float:
 
 
 def _inertia(value: Any, field: str) -> FloatArray:
-    inertia = finite_array(value, (3, 3), field)
-    scale = max(float(np.max(np.abs(inertia))), 1e-300)
-    if not np.allclose(inertia, inertia.T, rtol=0.0, atol=1e-9 * scale):
+    given = finite_array(value, (3, 3), field)
+    scale = max(float(np.max(np.abs(given))), 1e-300)
+    if not np.allclose(given, given.T, rtol=0.0, atol=1e-9 * scale):
         raise ParameterError(field, "inertia tensor must be symmetric")
+    inertia = _frozen(0.5 * (given + given.T))  # exactly the input when it is symmetric
     principal = np.linalg.eigvalsh(inertia)
     if principal[0] <= 1e-12 * scale:
         raise ParameterError(field, "inertia tensor must be positive definite")
@@ -64,16 +73,53 @@ def _axis(value: Any, field: str) -> FloatArray:
     return axis
 
 
+def _limits(value: Any, field: str) -> tuple[float, float]:
+    """``{"lower": x, "upper": y}`` (either may be null or missing: unlimited on that side)."""
+    if value is None:
+        return -math.inf, math.inf
+    if not isinstance(value, dict):
+        raise ParameterError(field, "expected an object with lower and upper (null for unlimited)")
+    bounds = []
+    for key, default in (("lower", -math.inf), ("upper", math.inf)):
+        raw = value.get(key)
+        if raw is None:
+            bounds.append(default)
+            continue
+        try:
+            number = float(raw)
+        except (TypeError, ValueError) as exc:
+            raise ParameterError(f"{field}.{key}", "expected a number or null") from exc
+        if not math.isfinite(number):
+            raise ParameterError(f"{field}.{key}", "must be finite (null for unlimited)")
+        bounds.append(number)
+    if not bounds[0] < bounds[1]:
+        raise ParameterError(field, f"lower ({bounds[0]:g}) must be smaller than upper ({bounds[1]:g})")
+    return bounds[0], bounds[1]
+
+
 @dataclass(frozen=True)
 class Link:
-    """One link and the revolute joint that drives it (joint i moves link i)."""
+    """One link and the joint that drives it (joint i moves link i). ``joint_axis`` is the
+    rotation axis of a revolute joint or the sliding direction of a prismatic one."""
 
     name: str
     mass: float
     joint_axis: FloatArray  # (3,) unit vector in link frame
-    a: FloatArray  # (3,) m, joint i -> CoM i
+    a: FloatArray  # (3,) m, joint i -> CoM i (at q_i = 0)
     b: FloatArray  # (3,) m, CoM i -> joint i+1 (or end effector)
     inertia: FloatArray  # (3, 3) kg m^2 about the CoM, link frame
+    joint_type: str = "revolute"  # one of JOINT_TYPES
+    joint_name: str = ""  # the URDF joint name ("" for the default "joint<i>")
+    lower: float = -math.inf  # position limits, rad (revolute) or m (prismatic)
+    upper: float = math.inf
+
+    @property
+    def prismatic(self) -> bool:
+        return self.joint_type == "prismatic"
+
+    @property
+    def limited(self) -> bool:
+        return math.isfinite(self.lower) or math.isfinite(self.upper)
 
 
 @dataclass(frozen=True)
@@ -83,6 +129,7 @@ class Base:
     mass: float
     inertia: FloatArray  # (3, 3) kg m^2 about the base CoM, base frame
     b: FloatArray  # (3,) m, base CoM -> joint 1
+    name: str = "base"
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,10 +141,41 @@ class RobotModel:
     base: Base
     links: tuple[Link, ...]
     C_e: FloatArray  # (3, 3) end-effector frame expressed in the last link's frame
+    end_effector_name: str = "end_effector"
 
     @property
     def n_joints(self) -> int:
         return len(self.links)
+
+    @property
+    def joint_types(self) -> tuple[str, ...]:
+        return tuple(link.joint_type for link in self.links)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(link.joint_name or f"joint{i + 1}" for i, link in enumerate(self.links))
+
+    @cached_property
+    def prismatic(self) -> np.ndarray:
+        """``(n,)`` bool: which joints are prismatic (their ``q`` in m, the others' in rad)."""
+        flags = np.array([link.prismatic for link in self.links], dtype=bool)
+        flags.setflags(write=False)
+        return flags
+
+    @cached_property
+    def limited(self) -> bool:
+        """Whether any joint has a position limit."""
+        return any(link.limited for link in self.links)
+
+    @cached_property
+    def lower_limits(self) -> FloatArray:
+        """``(n,)`` rad or m, ``-inf`` where unlimited."""
+        return _frozen(np.array([link.lower for link in self.links], dtype=float))
+
+    @cached_property
+    def upper_limits(self) -> FloatArray:
+        """``(n,)`` rad or m, ``+inf`` where unlimited."""
+        return _frozen(np.array([link.upper for link in self.links], dtype=float))
 
     @property
     def total_mass(self) -> float:
@@ -141,6 +219,7 @@ class RobotModel:
             b=np.array(self.b_vectors),
             C_e=np.array(self.C_e, dtype=float),
             total_mass=float(self.masses.sum()),
+            joints=np.stack([np.where(self.prismatic, 1.0, 0.0), self.lower_limits, self.upper_limits], axis=1),
         )
 
     @classmethod
@@ -157,10 +236,14 @@ class RobotModel:
         base_data = data.get("base")
         if not isinstance(base_data, dict):
             raise ParameterError("base", "expected an object with mass, inertia and b")
+        base_name = base_data.get("name", "base")
+        if not isinstance(base_name, str) or not base_name:
+            raise ParameterError("base.name", "expected a non-empty string")
         base = Base(
             mass=_mass(base_data.get("mass"), "base.mass"),
             inertia=_inertia(base_data.get("inertia"), "base.inertia"),
             b=finite_array(base_data.get("b"), (3,), "base.b"),
+            name=base_name,
         )
         links_data = data.get("links")
         if not isinstance(links_data, list) or not 1 <= len(links_data) <= MAX_JOINTS:
@@ -173,6 +256,13 @@ class RobotModel:
             link_name = ld.get("name", f"link{i + 1}")
             if not isinstance(link_name, str):
                 raise ParameterError(f"{field}.name", "expected a string")
+            joint_type = ld.get("joint_type", "revolute")
+            if joint_type not in JOINT_TYPES:
+                raise ParameterError(f"{field}.joint_type", f"must be one of {', '.join(JOINT_TYPES)}")
+            joint_name = ld.get("joint_name", "")
+            if not isinstance(joint_name, str):
+                raise ParameterError(f"{field}.joint_name", "expected a string")
+            lower, upper = _limits(ld.get("limits"), f"{field}.limits")
             links.append(
                 Link(
                     name=link_name,
@@ -181,6 +271,10 @@ class RobotModel:
                     a=finite_array(ld.get("a"), (3,), f"{field}.a"),
                     b=finite_array(ld.get("b"), (3,), f"{field}.b"),
                     inertia=_inertia(ld.get("inertia"), f"{field}.inertia"),
+                    joint_type=joint_type,
+                    joint_name=joint_name,
+                    lower=lower,
+                    upper=upper,
                 )
             )
         ee = data.get("end_effector", {"C_e": np.eye(3).tolist()})
@@ -189,33 +283,88 @@ class RobotModel:
         C_e = finite_array(ee.get("C_e", np.eye(3).tolist()), (3, 3), "end_effector.C_e")
         if not is_rotation(C_e):
             raise ParameterError("end_effector.C_e", "must be a rotation matrix (orthonormal, det +1)")
-        return cls(name=name, base=base, links=tuple(links), C_e=C_e)
+        ee_name = ee.get("name", "end_effector")
+        if not isinstance(ee_name, str) or not ee_name:
+            raise ParameterError("end_effector.name", "expected a non-empty string")
+        return cls(name=name, base=base, links=tuple(links), C_e=C_e, end_effector_name=ee_name)
 
     def to_dict(self) -> dict[str, Any]:
-        """The inverse of :meth:`from_dict` (plain lists and floats, JSON-ready)."""
-        return {
-            "name": self.name,
-            "base": {
-                "mass": self.base.mass,
-                "inertia": self.base.inertia.tolist(),
-                "b": self.base.b.tolist(),
-            },
-            "links": [
-                {
-                    "name": link.name,
-                    "mass": link.mass,
-                    "joint_axis": link.joint_axis.tolist(),
-                    "a": link.a.tolist(),
-                    "b": link.b.tolist(),
-                    "inertia": link.inertia.tolist(),
+        """The inverse of :meth:`from_dict` (plain lists and floats, JSON-ready; unlimited
+        joint limits are null)."""
+        base: dict[str, Any] = {"mass": self.base.mass, "inertia": self.base.inertia.tolist(), "b": self.base.b.tolist()}
+        if self.base.name != "base":
+            base["name"] = self.base.name
+        links: list[dict[str, Any]] = []
+        for link in self.links:
+            entry: dict[str, Any] = {
+                "name": link.name,
+                "mass": link.mass,
+                "joint_type": link.joint_type,
+                "joint_axis": link.joint_axis.tolist(),
+                "a": link.a.tolist(),
+                "b": link.b.tolist(),
+                "inertia": link.inertia.tolist(),
+            }
+            if link.joint_name and link.joint_name != f"joint{len(links) + 1}":
+                entry["joint_name"] = link.joint_name
+            if link.limited:
+                entry["limits"] = {
+                    "lower": link.lower if math.isfinite(link.lower) else None,
+                    "upper": link.upper if math.isfinite(link.upper) else None,
                 }
-                for link in self.links
-            ],
-            "end_effector": {"C_e": self.C_e.tolist()},
-        }
+            links.append(entry)
+        end_effector: dict[str, Any] = {"C_e": self.C_e.tolist()}
+        if self.end_effector_name != "end_effector":
+            end_effector["name"] = self.end_effector_name
+        return {"name": self.name, "base": base, "links": links, "end_effector": end_effector}
+
+    @classmethod
+    def from_urdf(
+        cls,
+        text: str | bytes,
+        *,
+        end_effector_link: str | None = None,
+        tool_offset: tuple[Any, Any] | None = None,
+        name: str | None = None,
+    ) -> RobotModel:
+        """The model of a URDF robot (see :mod:`engine.urdf`): the root link is the floating
+        base, fixed joints are merged, the chain runs to ``end_effector_link`` (default: the only
+        leaf after the last moving joint); ``tool_offset = (position (3,) m, rotation (3, 3))``
+        places the end effector in that link's frame. Raises :class:`engine.urdf.UrdfError` (a
+        ``ParameterError``) naming the URDF element at fault."""
+        params = urdf_to_dict(text, end_effector_link=end_effector_link, tool_offset=tool_offset, name=name)
+        try:
+            return cls.from_dict(params)
+        except ParameterError as exc:  # the URDF checks come first; this names the URDF element anyway
+            raise UrdfError(urdf_element(params, exc.field), exc.reason) from None
+
+    def to_urdf(self) -> str:
+        """This model as URDF text that :meth:`from_urdf` and Pinocchio read back to the same
+        model (see :func:`engine.urdf.dict_to_urdf`)."""
+        return dict_to_urdf(self.to_dict())
 
 
 def table1_robot() -> RobotModel:
     """The 6-DOF robot of the paper's Table 1 with the frames of ``robot-table1.md``."""
     text = resources.files("engine").joinpath("data/table1_robot.json").read_text()
     return RobotModel.from_dict(json.loads(text))
+
+
+#: URDF robots shipped with the engine (``engine/data/<file>``): preset id -> (file, end-effector link).
+URDF_PRESETS: dict[str, tuple[str, str]] = {
+    "arm7": ("arm7_spacecraft.urdf", "tool0"),
+    "arm3": ("arm3.urdf", "tool0"),
+}
+
+
+def urdf_preset_text(preset: str) -> str:
+    """The URDF text of a shipped robot (one of :data:`URDF_PRESETS`)."""
+    filename, _ = URDF_PRESETS[preset]
+    return resources.files("engine").joinpath(f"data/{filename}").read_text()
+
+
+def urdf_robot(preset: str) -> RobotModel:
+    """A shipped URDF robot: ``"arm7"``, a 7-joint arm on a spacecraft body (fixed mounting
+    link, tool frame), or ``"arm3"``, a 3-joint arm (two revolute joints and a prismatic boom)."""
+    _, end_effector = URDF_PRESETS[preset]
+    return RobotModel.from_urdf(urdf_preset_text(preset), end_effector_link=end_effector, name=preset)

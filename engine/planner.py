@@ -9,6 +9,10 @@ base rate), and the base position from the fixed system centre of mass (linear m
 exactly zero). :func:`plan` keeps every sample; :func:`plan_batch` (and the GA) keep only the
 running metrics, so their memory does not grow with the number of steps, and spread the
 parameter sets over threads (the kernels release the GIL).
+
+A task tracks the pose (6 rows of the GJM) or the position only (3 rows); a redundant arm (more
+joints than that) may add a secondary objective in the null space (:mod:`engine.redundancy`).
+A plan fails, with a message, when a joint leaves its position limits.
 """
 
 from __future__ import annotations
@@ -26,10 +30,12 @@ import numpy as np
 from engine.errors import ParameterError
 from engine.inverses import RobustInverse, inverse_params, kernel_param_rows, make_inverse, method_spec
 from engine.kernels import plan as plan_kernels
+from engine.kernels import redundancy as redundancy_kernels
 from engine.metrics import BatchMetrics, Metrics, Objective, batch_metrics
 from engine.model import RobotModel
+from engine.redundancy import SecondaryObjective, joint_centres
 from engine.spatial import FloatArray, matrix_to_quaternion
-from engine.trajectory import CartesianTask
+from engine.trajectory import TRACKS, CartesianTask
 
 #: Default tolerances on the final pose for a plan to count as reaching its target. Loose on
 #: purpose: open-loop damped plans of the paper's task end within about 5 mm and 2 deg.
@@ -61,20 +67,60 @@ def _pool(threads: int) -> ThreadPoolExecutor:
         return _POOL[2]
 
 
-def _check(model: RobotModel, task: CartesianTask, feedback_gain: float) -> None:
+def _joint_value(model: RobotModel, j: int, value: float) -> str:
+    """A joint position for messages: deg for a revolute joint, m for a prismatic one."""
+    return f"{value:.4g} m" if model.links[j].prismatic else f"{math.degrees(value):.4g} deg"
+
+
+def check_task(model: RobotModel, task: CartesianTask) -> None:
+    """Whether ``model`` can run ``task``: one start value per joint, within the joint's
+    position limits, and at least as many joints as the task tracks (6 for a pose, 3 for a
+    position). Raises ``ParameterError`` naming the task field (``q0``, ``q0[j]``, ``tracks``)."""
     n = model.n_joints
     if task.q0.shape != (n,):
         raise ParameterError("q0", f"task has {task.q0.shape[0]} joint angles, robot has {n} joints")
+    rows = TRACKS[task.tracks]
+    if n < rows:
+        other = " (track 'position' instead)" if task.tracks == "pose" and n >= 3 else ""
+        raise ParameterError(
+            "tracks", f"a {task.tracks} task needs at least {rows} joints; this robot has {n}, so it cannot follow it{other}"
+        )
+    if not model.limited:
+        return
+    outside = (task.q0 < model.lower_limits) | (task.q0 > model.upper_limits)
+    for j in map(int, np.flatnonzero(outside)):
+        lo, hi = model.lower_limits[j], model.upper_limits[j]
+        raise ParameterError(
+            f"q0[{j}]",
+            f"{_joint_value(model, j, task.q0[j])} is outside the limits of joint {j + 1} ({model.joint_names[j]}): "
+            f"[{_joint_value(model, j, lo)}, {_joint_value(model, j, hi)}]",
+        )
+
+
+def _check(model: RobotModel, task: CartesianTask, feedback_gain: float, secondary: SecondaryObjective | None) -> None:
+    check_task(model, task)
     if not math.isfinite(feedback_gain) or feedback_gain < 0.0:
         raise ParameterError("feedback_gain", "must be finite and >= 0")
+    rows = TRACKS[task.tracks]
+    if secondary is not None and model.n_joints <= rows:
+        raise ParameterError(
+            "secondary",
+            f"a secondary objective needs a redundant arm: more joints than the {rows} the {task.tracks} task tracks "
+            f"(this robot has {model.n_joints})",
+        )
 
 
 def _kernel_args(
-    model: RobotModel, task: CartesianTask, inverse: RobustInverse, feedback_gain: float, params: FloatArray
+    model: RobotModel,
+    task: CartesianTask,
+    inverse: RobustInverse,
+    feedback_gain: float,
+    params: FloatArray,
+    secondary: SecondaryObjective | None,
 ) -> tuple[object, ...]:
     """The leading arguments of the planner kernels, checked; always of the same types, so each
     kernel is compiled once."""
-    _check(model, task, feedback_gain)
+    _check(model, task, feedback_gain, secondary)
     samples = task.samples
     q0 = np.array(task.q0, dtype=float)
     return (
@@ -87,11 +133,15 @@ def _kernel_args(
         float(feedback_gain),
         int(inverse.method_id),
         params,
+        int(TRACKS[task.tracks]),
+        int(secondary.objective_id if secondary is not None else redundancy_kernels.NONE),
+        float(secondary.gain if secondary is not None else 0.0),
+        joint_centres(model, q0) if secondary is not None else q0,  # only the joint centering reads it
     )
 
 
-def _trace_arrays(n_samples: int, n: int) -> tuple[FloatArray, ...]:
-    m = min(6, n)
+def _trace_arrays(n_samples: int, n: int, rows: int) -> tuple[FloatArray, ...]:
+    m = min(rows, n)
     return (
         np.empty((n_samples, n)),
         np.empty((n_samples, n)),
@@ -107,28 +157,61 @@ def _trace_arrays(n_samples: int, n: int) -> tuple[FloatArray, ...]:
     )
 
 
-def _verdict(metrics: Metrics, position_tolerance: float, attitude_tolerance: float) -> tuple[bool, str]:
+def _verdict(
+    metrics: Metrics, position_tolerance: float, attitude_tolerance: float, model: RobotModel | None = None
+) -> tuple[bool, str]:
     problems = []
     if not metrics.finite:
         problems.append(f"the plan diverged at t = {metrics.time_diverged:g} s (non-finite joint rates or poses)")
     else:
-        if metrics.position_error_final > position_tolerance or metrics.attitude_error_final > attitude_tolerance:
-            problems.append(
-                f"target not reached: final errors {metrics.position_error_final:.4g} m and "
-                f"{math.degrees(metrics.attitude_error_final):.3g} deg exceed the tolerances "
-                f"{position_tolerance:g} m and {math.degrees(attitude_tolerance):.3g} deg"
-            )
-        elif metrics.position_error_max > position_tolerance or metrics.attitude_error_max > attitude_tolerance:
-            problems.append(
-                f"path not tracked: errors up to {metrics.position_error_max:.4g} m and "
-                f"{math.degrees(metrics.attitude_error_max):.3g} deg exceed the tolerances "
-                f"{position_tolerance:g} m and {math.degrees(attitude_tolerance):.3g} deg"
-            )
-        if not metrics.joint_speed_limit_respected:
+        pose = metrics.tracks == "pose"
+        if metrics.position_error_final > position_tolerance or (pose and metrics.attitude_error_final > attitude_tolerance):
+            if pose:
+                problems.append(
+                    f"target not reached: final errors {metrics.position_error_final:.4g} m and "
+                    f"{math.degrees(metrics.attitude_error_final):.3g} deg exceed the tolerances "
+                    f"{position_tolerance:g} m and {math.degrees(attitude_tolerance):.3g} deg"
+                )
+            else:
+                problems.append(
+                    f"target not reached: final position error {metrics.position_error_final:.4g} m exceeds the "
+                    f"tolerance {position_tolerance:g} m"
+                )
+        elif metrics.position_error_max > position_tolerance or (pose and metrics.attitude_error_max > attitude_tolerance):
+            if pose:
+                problems.append(
+                    f"path not tracked: errors up to {metrics.position_error_max:.4g} m and "
+                    f"{math.degrees(metrics.attitude_error_max):.3g} deg exceed the tolerances "
+                    f"{position_tolerance:g} m and {math.degrees(attitude_tolerance):.3g} deg"
+                )
+            else:
+                problems.append(
+                    f"path not tracked: position errors up to {metrics.position_error_max:.4g} m exceed the "
+                    f"tolerance {position_tolerance:g} m"
+                )
+        if metrics.max_joint_speed > metrics.joint_speed_limit:
             problems.append(
                 f"joint speed limit broken: {metrics.max_joint_speed_deg_s:.4g} deg/s on joint "
                 f"{metrics.max_joint_speed_joint + 1} (limit {math.degrees(metrics.joint_speed_limit):.4g} deg/s)"
             )
+        if metrics.max_linear_joint_speed > metrics.linear_joint_speed_limit:
+            problems.append(
+                f"linear joint speed limit broken: {metrics.max_linear_joint_speed:.4g} m/s on joint "
+                f"{metrics.max_linear_joint_speed_joint + 1} (limit {metrics.linear_joint_speed_limit:.4g} m/s)"
+            )
+        if not metrics.position_limits_respected:
+            j = metrics.position_limit_joint
+            where = f"joint {j + 1}"
+            if model is not None:
+                lo, hi = model.lower_limits[j], model.upper_limits[j]
+                where += (
+                    f" ({model.joint_names[j]}) left its position limits [{_joint_value(model, j, lo)}, "
+                    f"{_joint_value(model, j, hi)}] at t = {metrics.time_position_limit_left:g} s, by up to "
+                    f"{_joint_value(model, j, metrics.position_limit_excess)}"
+                )
+            else:
+                where += f" left its position limits at t = {metrics.time_position_limit_left:g} s"
+            problems.append(where)
     if problems:
         return False, "; ".join(problems)
     return True, "ok"
@@ -141,21 +224,28 @@ def _where(
     qd: FloatArray,
     p_des: FloatArray,
     A_des: FloatArray,
-    joint_speed_limit: float,
+    prismatic: np.ndarray,
+    speed_limits: tuple[float, float],
     position_tolerance: float,
     attitude_tolerance: float,
 ) -> str:
     """Where a failed plan first went wrong: the first sample that is not finite, off the path
-    by more than the tolerances or over the joint speed limit, with the desired pose there."""
-    speed = np.max(np.abs(qd), axis=1)
-    bad = ~((position_error <= position_tolerance) & (attitude_error <= attitude_tolerance) & (speed <= joint_speed_limit))
+    by more than the tolerances (``attitude_tolerance`` inf for a position task) or over a
+    joint's speed limit (``speed_limits``: rad/s for revolute, m/s for ``prismatic (n,)``
+    joints), with the desired pose there."""
+    limits = np.where(prismatic, speed_limits[1], speed_limits[0])
+    over = np.abs(qd) / limits
+    worst = np.max(over, axis=1)
+    bad = ~((position_error <= position_tolerance) & (attitude_error <= attitude_tolerance) & (worst <= 1.0))
     if not np.any(bad):
         return ""
     k = int(np.argmax(bad))
-    if not (np.isfinite(position_error[k]) and np.isfinite(speed[k])):
+    if not (np.isfinite(position_error[k]) and np.isfinite(worst[k])):
         what = "the plan stopped"
-    elif speed[k] > joint_speed_limit:
-        what = f"a joint reached {math.degrees(speed[k]):.4g} deg/s"
+    elif worst[k] > 1.0:
+        j = int(np.argmax(over[k]))
+        speed = f"{abs(qd[k, j]):.4g} m/s" if prismatic[j] else f"{math.degrees(abs(qd[k, j])):.4g} deg/s"
+        what = f"joint {j + 1} reached {speed}"
     else:
         what = f"the errors reached {position_error[k]:.4g} m and {math.degrees(attitude_error[k]):.3g} deg"
     position = ", ".join(f"{x:.4g}" for x in p_des[k])
@@ -197,6 +287,7 @@ class PlanResult:
     success: bool
     message: str
     task: CartesianTask = field(repr=False)
+    secondary: SecondaryObjective | None = None
 
 
 def plan(
@@ -210,19 +301,20 @@ def plan(
     attitude_term: str = "eq18",
     position_tolerance: float = POSITION_TOLERANCE_M,
     attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
+    secondary: SecondaryObjective | None = None,
 ) -> PlanResult:
-    """Plan ``task`` with ``inverse``. ``success`` is false (with a message) if the plan
-    diverged, misses the target pose by more than the tolerances, or breaks the joint
-    speed limit; the arrays and metrics are returned in every case."""
+    """Plan ``task`` with ``inverse`` (and, on a redundant arm, the null-space ``secondary``
+    objective). ``success`` is false (with a message) if the plan diverged, misses the target
+    by more than the tolerances (the attitude only for a pose task), breaks a joint speed limit
+    or leaves a joint's position limits; the arrays and metrics are returned in every case."""
     objective = Objective(weights, aggregation, attitude_term)
     samples = task.samples
-    trace = _trace_arrays(samples.t.shape[0], model.n_joints)
+    trace = _trace_arrays(samples.t.shape[0], model.n_joints, TRACKS[task.tracks])
     raw = np.empty((1, plan_kernels.N_METRICS))
-    plan_kernels.simulate(
-        *_kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, 1)[0]), True, trace, raw[0]
-    )
-    metrics = batch_metrics(raw, task.joint_speed_limit, objective).item(0)
-    success, message = _verdict(metrics, position_tolerance, attitude_tolerance)
+    args = _kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, 1)[0], secondary)
+    plan_kernels.simulate(*args, True, trace, raw[0])
+    metrics = task_metrics(raw, task, objective).item(0)
+    success, message = _verdict(metrics, position_tolerance, attitude_tolerance, model)
     q, qd, base_p, base_A, ee_p, ee_A, sv, det, damping, pos_err, att_err = trace
     if not success:
         where = _where(
@@ -232,9 +324,10 @@ def plan(
             qd,
             samples.p_des,
             samples.A_des,
-            task.joint_speed_limit,
+            model.prismatic,
+            (task.joint_speed_limit, task.linear_joint_speed_limit),
             position_tolerance,
-            attitude_tolerance,
+            attitude_tolerance if task.tracks == "pose" else math.inf,
         )
         message = f"{message}; {where}" if where else message
     return PlanResult(
@@ -260,6 +353,14 @@ def plan(
         success=success,
         message=message,
         task=task,
+        secondary=secondary,
+    )
+
+
+def task_metrics(raw: FloatArray, task: CartesianTask, objective: Objective) -> BatchMetrics:
+    """The metrics of the kernel's rows ``raw (B, N_METRICS)`` of plans of ``task``."""
+    return batch_metrics(
+        raw, task.joint_speed_limit, objective, linear_joint_speed_limit=task.linear_joint_speed_limit, tracks=task.tracks
     )
 
 
@@ -316,6 +417,7 @@ def evaluate(
     threads: int | None = None,
     batch_size: int | None = None,
     stop: threading.Event | None = None,
+    secondary: SecondaryObjective | None = None,
 ) -> FloatArray:
     """The kernel's metrics rows ``(batch, N_METRICS)`` of ``batch`` parameter sets of
     ``inverse`` (array parameters of shape ``(batch,)``), no traces kept. The sets are split
@@ -325,7 +427,7 @@ def evaluate(
     With a ``stop`` event the pieces are small (about :data:`STOP_LATENCY_S` of work each) and
     a piece that has not started when ``stop`` is set is skipped: :class:`EvaluationStoppedError`
     is raised once the running ones end."""
-    args = _kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, batch))
+    args = _kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, batch), secondary)
     out = np.empty((batch, plan_kernels.N_METRICS))
     workers = max(1, threads if threads is not None else default_threads())
     size = batch_size or max(1, math.ceil(batch / (4 * workers)))
@@ -363,6 +465,7 @@ def plan_batch(
     attitude_term: str = "eq18",
     threads: int | None = None,
     stop: threading.Event | None = None,
+    secondary: SecondaryObjective | None = None,
 ) -> BatchResult:
     """Plan many parameter sets of ``method`` and return their metrics (no trajectories: the
     memory is proportional to the number of sets, not to the number of steps).
@@ -375,8 +478,18 @@ def plan_batch(
     columns = _stack_params(method, params)
     total = next(iter(columns.values())).shape[0] if columns else max(1, len(params))
     inverse = make_inverse(method, **columns)
-    raw = evaluate(model, task, inverse, total, feedback_gain=feedback_gain, threads=threads, batch_size=batch_size, stop=stop)
-    return BatchResult(method=method, params=columns, metrics=batch_metrics(raw, task.joint_speed_limit, objective))
+    raw = evaluate(
+        model,
+        task,
+        inverse,
+        total,
+        feedback_gain=feedback_gain,
+        threads=threads,
+        batch_size=batch_size,
+        stop=stop,
+        secondary=secondary,
+    )
+    return BatchResult(method=method, params=columns, metrics=task_metrics(raw, task, objective))
 
 
 def evaluate_tasks(
@@ -386,12 +499,13 @@ def evaluate_tasks(
     *,
     feedback_gain: float = 0.0,
     threads: int | None = None,
+    secondary: SecondaryObjective | None = None,
 ) -> FloatArray:
     """The kernel's metrics rows ``(len(tasks), N_METRICS)`` of one parameter set of
     ``inverse`` on each task (for example one path at several durations), no traces kept, the
     tasks spread over ``threads`` threads (default :func:`default_threads`)."""
     params = kernel_param_rows(inverse, 1)
-    args = [_kernel_args(model, task, inverse, feedback_gain, params) for task in tasks]
+    args = [_kernel_args(model, task, inverse, feedback_gain, params, secondary) for task in tasks]
     out = np.empty((len(args), plan_kernels.N_METRICS))
     workers = max(1, threads if threads is not None else default_threads())
 
@@ -413,10 +527,12 @@ def verdicts(
     objective: Objective,
     position_tolerance: float = POSITION_TOLERANCE_M,
     attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
+    model: RobotModel | None = None,
 ) -> list[tuple[Metrics, bool, str]]:
-    """Metrics, success and message of each row of :func:`evaluate_tasks`."""
+    """Metrics, success and message of each row of :func:`evaluate_tasks` (``model`` names
+    the joints in the messages)."""
     out = []
     for row, task in zip(raw, tasks, strict=True):
-        metrics = batch_metrics(row[None], task.joint_speed_limit, objective).item(0)
-        out.append((metrics, *_verdict(metrics, position_tolerance, attitude_tolerance)))
+        metrics = task_metrics(row[None], task, objective).item(0)
+        out.append((metrics, *_verdict(metrics, position_tolerance, attitude_tolerance, model)))
     return out

@@ -31,6 +31,7 @@ from engine.planner import (
     plan,
     verdicts,
 )
+from engine.redundancy import SecondaryObjective
 from engine.trajectory import MAX_DURATION_S, MAX_STEPS, CartesianTask
 
 DEFAULT_RELATIVE_TOLERANCE = 0.002
@@ -69,6 +70,7 @@ def shortest_duration(
     candidates: int = 4,
     max_duration: float | None = None,
     threads: int | None = None,
+    secondary: SecondaryObjective | None = None,
 ) -> DurationSearch:
     """The shortest duration of ``task``'s path (s) at which ``inverse`` plans it successfully,
     to ``relative_tolerance``, searched between one step (``task.dt``) and ``max_duration``
@@ -99,9 +101,9 @@ def shortest_duration(
         if not fresh:
             return
         tasks = [task.with_duration(d) for d in fresh]
-        raw = evaluate_tasks(model, tasks, inverse, feedback_gain=feedback_gain, threads=threads)
+        raw = evaluate_tasks(model, tasks, inverse, feedback_gain=feedback_gain, threads=threads, secondary=secondary)
         for d, (_, ok, message) in zip(
-            fresh, verdicts(raw, tasks, objective, position_tolerance, attitude_tolerance), strict=True
+            fresh, verdicts(raw, tasks, objective, position_tolerance, attitude_tolerance, model), strict=True
         ):
             feasible[d] = ok
             verdict_of[d] = message
@@ -147,6 +149,7 @@ def shortest_duration(
             attitude_term=attitude_term,
             position_tolerance=position_tolerance,
             attitude_tolerance=attitude_tolerance,
+            secondary=secondary,
         )
 
     if hi is None:

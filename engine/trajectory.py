@@ -22,7 +22,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -42,15 +42,20 @@ __all__ = [
     "PAPER_TARGET_POSITION",
     "PAPER_TARGET_RPY",
     "PROFILES",
+    "TRACKS",
     "CartesianTask",
     "PathSamples",
     "Profile",
+    "Tracks",
     "paper_task",
     "start_pose",
 ]
 
 #: Poses at the ends of a given path must match the task's start and target to this (m, rad).
 END_TOLERANCE = 1e-9
+
+Tracks = Literal["pose", "position"]
+TRACKS: dict[str, int] = {"pose": 6, "position": 3}  # what a task tracks -> rows of the GJM it needs
 MAX_DURATION_S = 600.0
 MAX_STEPS = 20_000
 MIN_DT_S = 1e-4  # 0.1 ms: finer steps add rounding, not accuracy
@@ -85,7 +90,12 @@ class CartesianTask:
     Without ``path`` it is the point-to-point line from the start to the target pose in
     ``duration`` (``ramp_time`` and ``profile`` its time law). With ``path``, the start and
     target fields must be the path's end poses and ``duration`` its duration (use
-    :meth:`following`); ``ramp_time`` and ``profile`` are then not used."""
+    :meth:`following`); ``ramp_time`` and ``profile`` are then not used.
+
+    ``tracks`` says what the planner follows: the whole ``"pose"`` (needs 6 joints or more) or
+    the ``"position"`` only (3 or more; the attitude path is then reported, not tracked).
+    ``joint_speed_limit`` (rad/s) applies to revolute joints, ``linear_joint_speed_limit``
+    (m/s, unlimited by default) to prismatic ones."""
 
     q0: FloatArray  # (n,) rad
     start_position: FloatArray  # (3,) m
@@ -98,6 +108,8 @@ class CartesianTask:
     profile: Profile = "trapezoidal"
     joint_speed_limit: float = math.radians(6.0)  # rad/s, symmetric
     path: Path | None = None
+    tracks: Tracks = "pose"
+    linear_joint_speed_limit: float = math.inf  # m/s, symmetric
     _phi: FloatArray = field(init=False, repr=False, compare=False)
     _path: Path = field(init=False, repr=False, compare=False)
 
@@ -138,6 +150,12 @@ class CartesianTask:
             self._check_path_ends(path)
         if self.joint_speed_limit <= 0.0:
             raise ParameterError("joint_speed_limit", "must be > 0")
+        if self.tracks not in TRACKS:
+            raise ParameterError("tracks", f"must be one of {', '.join(TRACKS)}")
+        linear = float(self.linear_joint_speed_limit)
+        if math.isnan(linear) or linear <= 0.0:
+            raise ParameterError("linear_joint_speed_limit", "must be > 0 (inf for no limit)")
+        object.__setattr__(self, "linear_joint_speed_limit", linear)
         if self.n_steps > MAX_STEPS:
             raise ParameterError("dt", f"duration / dt gives {self.n_steps} steps, at most {MAX_STEPS} allowed")
         object.__setattr__(self, "_phi", log_so3(self.target_attitude @ self.start_attitude.T))
@@ -287,6 +305,8 @@ class CartesianTask:
             "dt": self.dt,
             "profile": self.profile,
             "joint_speed_limit": self.joint_speed_limit,
+            "linear_joint_speed_limit": self.linear_joint_speed_limit,
+            "tracks": self.tracks,
             "rotation_angle": float(np.linalg.norm(self._phi)),
             "path": self._path.summary(),
         }

@@ -29,14 +29,16 @@ DESCRIPTION = """
 Singularity-robust Cartesian path planning for free-floating space robots.
 
 * SI units everywhere; angles are in **degrees only in fields whose name ends in `_deg`**
-  (or `_deg_s`), radians elsewhere (`*_rad`). Quaternions are `[w, x, y, z]`.
+  (or `_deg_s`), radians elsewhere (`*_rad`). Quaternions are `[w, x, y, z]`. Joint positions come
+  in index-aligned lists per unit: revolute joints in `..._deg`, prismatic joints in `..._m`
+  (null at the joints of the other type).
 * Plans are synchronous (`POST /v1/plans`); GA tuning jobs are asynchronous
   (`POST /v1/tuning-jobs`, then poll `GET /v1/tuning-jobs/{job_id}`).
 * Errors are RFC 9457 problem details (`application/problem+json`).
 """
 
 TAGS = [
-    {"name": "robots", "description": "Robot parameter sets (schema of robot-table1.yaml) and the generalized Jacobian"},
+    {"name": "robots", "description": "Robots: parameter sets (schema of robot-table1.yaml) or URDF files, their URDF, the GJM"},
     {"name": "tasks", "description": "Task presets; `paper-line` is the paper's detection line"},
     {"name": "plans", "description": "Synchronous Cartesian plans with a robust inverse"},
     {"name": "tuning", "description": "Asynchronous GA tuning jobs of the damping parameters, with live events"},

@@ -13,13 +13,16 @@ from sqlalchemy.orm import Session
 
 from engine import CartesianTask, Metrics, PlanResult, ReplayResult, RobotModel
 from engine.errors import ParameterError
+from engine.kinematics import as_state, forward_kinematics
 from engine.paths import SpeedLimits, make_path
+from engine.planner import check_task
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.trajectory import MAX_DURATION_S, start_pose
+from engine.urdf import UrdfError
 from service import jsonio
 from service.errors import ApiValidationError, NotFoundError
 from service.models import Robot
-from service.schemas import ArcPathIn, PathIn, RasterPathIn, RobotParams, TaskIn, WaypointsPathIn
+from service.schemas import ArcPathIn, PathIn, RasterPathIn, RobotParams, RobotUrdfIn, TaskIn, WaypointsPathIn
 
 
 def clean(value: Any) -> Any:
@@ -103,6 +106,8 @@ TASK_FIELDS = {
     "dt": "dt_s",
     "profile": "profile",
     "joint_speed_limit": "joint_speed_limit_deg_s",
+    "linear_joint_speed_limit": "joint_speed_limit_m_s",
+    "tracks": "tracks",
 }
 #: Engine names of path fields -> API names (under ``path.<type>``).
 PATH_FIELDS = {
@@ -205,17 +210,78 @@ def path_spec(path: PathIn, task: TaskIn, loc: list[str | int]) -> dict[str, Any
     }
 
 
-def _engine_error(exc: ParameterError, kind: str, loc: tuple[str | int, ...]) -> ApiValidationError:
+def _engine_error(
+    exc: ParameterError, kind: str, loc: tuple[str | int, ...], model: RobotModel | None = None
+) -> ApiValidationError:
     """The 422 of an engine error, at the task field (``q0_deg``, ``duration_s``, ...) or the
     path field (``path.<type>.<field>``) it names."""
     parts = field_path(exc.field)
     head = str(parts[0])
+    if head == "q0" and model is not None and len(parts) == 2 and isinstance(parts[1], int):
+        # a joint outside its limits: the list of its unit
+        return _invalid([*loc, "q0_m" if model.links[parts[1]].prismatic else "q0_deg", parts[1]], exc.reason)
     if head in TASK_FIELDS:
         return _invalid([*loc, TASK_FIELDS[head], *parts[1:]], exc.reason)
     names = [PATH_FIELDS.get(p, p) if isinstance(p, str) else p for p in parts]
     if kind == "waypoints" and names[-1] == "attitude":
         names[-1] = "attitude_quaternion"
     return _invalid([*loc, "path", kind, *names], exc.reason)
+
+
+def urdf_model(body: RobotUrdfIn, loc: tuple[str | int, ...] = ("body",)) -> RobotModel:
+    """The model of a URDF body; a URDF the engine refuses is a 422 naming the URDF element (in
+    the detail and in the problem's ``element`` member)."""
+    tool = None
+    if body.tool_position_m is not None or body.tool_attitude_quaternion is not None:
+        try:
+            rotation = quaternion_to_matrix(body.tool_attitude_quaternion) if body.tool_attitude_quaternion else np.eye(3)
+        except ValueError as exc:
+            path = [*loc, "tool_attitude_quaternion"]
+            raise ApiValidationError(f"tool_attitude_quaternion: {exc}", [{"loc": path, "msg": str(exc)}]) from None
+        tool = (np.asarray(body.tool_position_m or [0.0, 0.0, 0.0], dtype=float), rotation)
+    try:
+        return RobotModel.from_urdf(body.urdf, end_effector_link=body.end_effector_link, tool_offset=tool, name=body.name)
+    except UrdfError as exc:
+        field = "end_effector_link" if "end_effector_link" in exc.reason else "urdf"
+        error = ApiValidationError(f"invalid URDF: {exc}", [{"loc": [*loc, field], "msg": str(exc)}])
+        error.extra["element"] = exc.element
+        raise error from None
+
+
+def joint_positions(
+    model: RobotModel,
+    deg: list[float | None] | None,
+    m: list[float | None] | None,
+    fields: tuple[str, str],
+    loc: tuple[str | int, ...],
+) -> np.ndarray:
+    """``q (n,)`` (rad, m) from the API's two index-aligned lists ``fields`` (degrees for the
+    revolute joints, metres for the prismatic ones, null at the other joints)."""
+    n = model.n_joints
+    deg_field, m_field = fields
+    errors: list[dict[str, Any]] = []
+    for values, field in ((deg, deg_field), (m, m_field)):
+        if values is not None and len(values) != n:
+            errors.append({"loc": [*loc, field], "msg": f"expected {n} values (one per joint), got {len(values)}"})
+    if errors:
+        raise ApiValidationError(f"{errors[0]['loc'][-1]}: {errors[0]['msg']}", errors)
+    q = np.empty(n)
+    for j, link in enumerate(model.links):
+        field, other = (m_field, deg_field) if link.prismatic else (deg_field, m_field)
+        mine, theirs = (m, deg) if link.prismatic else (deg, m)
+        kind = "prismatic (m)" if link.prismatic else "revolute (deg)"
+        value = mine[j] if mine is not None else None
+        if value is None:
+            errors.append(
+                {"loc": [*loc, field, j], "msg": f"joint {j + 1} ({model.joint_names[j]}) is {kind}: give it in {field}"}
+            )
+            continue
+        if theirs is not None and theirs[j] is not None:
+            errors.append({"loc": [*loc, other, j], "msg": f"joint {j + 1} ({model.joint_names[j]}) is {kind}: null here"})
+        q[j] = value if link.prismatic else math.radians(value)
+    if errors:
+        raise ApiValidationError("; ".join(f"{e['loc'][-2]}[{e['loc'][-1]}]: {e['msg']}" for e in errors), errors)
+    return q
 
 
 def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("body", "task")) -> CartesianTask:
@@ -227,8 +293,8 @@ def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("b
         if getattr(task, name) is not None:
             raise _invalid([*loc, name], f"only for line paths (the {kind} path sets its own poses)")
     path_loc = [*loc, "path", kind]
+    q0 = joint_positions(model, task.q0_deg, task.q0_m, ("q0_deg", "q0_m"), loc)
     try:
-        q0 = np.radians(task.q0_deg)
         position, attitude = start_pose(model, q0)
         path = make_path(kind, position, attitude, **path_spec(task.path, task, path_loc))
         if task.duration_s is None and path.duration > MAX_DURATION_S:
@@ -237,30 +303,50 @@ def build_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...] = ("b
                 f"the path takes {path.duration:.6g} s at its speeds (or durations), more than the {MAX_DURATION_S:g} s allowed: "
                 "raise its speeds or give duration_s",
             )
-        return CartesianTask.following(path, q0, dt=task.dt_s, joint_speed_limit=math.radians(task.joint_speed_limit_deg_s))
+        built = CartesianTask.following(path, q0, dt=task.dt_s, **_limits(task))
+        check_task(model, built)
+        return built
     except ParameterError as exc:
-        raise _engine_error(exc, kind, loc) from None
+        raise _engine_error(exc, kind, loc, model) from None
+
+
+def _limits(task: TaskIn) -> dict[str, Any]:
+    """What the task tracks and its joint speed limits, in engine units."""
+    return {
+        "joint_speed_limit": math.radians(task.joint_speed_limit_deg_s),
+        "linear_joint_speed_limit": math.inf if task.joint_speed_limit_m_s is None else task.joint_speed_limit_m_s,
+        "tracks": task.tracks,
+    }
 
 
 def _line_task(model: RobotModel, task: TaskIn, loc: tuple[str | int, ...]) -> CartesianTask:
-    if task.target_position_m is None or task.target_attitude_quaternion is None:
-        name = "target_position_m" if task.target_position_m is None else "target_attitude_quaternion"
-        raise _invalid([*loc, name], "required for a line path")
-    attitude = _matrix(task.target_attitude_quaternion, [*loc, "target_attitude_quaternion"])
+    if task.target_position_m is None:
+        raise _invalid([*loc, "target_position_m"], "required for a line path")
+    q0 = joint_positions(model, task.q0_deg, task.q0_m, ("q0_deg", "q0_m"), loc)
+    if task.target_attitude_quaternion is not None:
+        attitude = _matrix(task.target_attitude_quaternion, [*loc, "target_attitude_quaternion"])
+    elif task.tracks == "pose":
+        raise _invalid(
+            [*loc, "target_attitude_quaternion"], "required for a pose task on a line path (a position task may leave it out)"
+        )
+    else:  # not tracked: the attitude at q0 is carried along for the figures
+        attitude = forward_kinematics(model, as_state(model, q0)).ee_attitude
     try:
-        return CartesianTask.from_q0(
+        built = CartesianTask.from_q0(
             model,
-            np.radians(task.q0_deg),
+            q0,
             np.asarray(task.target_position_m, dtype=float),
             attitude,
             duration=DEFAULT_DURATION_S if task.duration_s is None else task.duration_s,
             ramp_time=task.ramp_time_s,
             dt=task.dt_s,
             profile=task.profile,
-            joint_speed_limit=math.radians(task.joint_speed_limit_deg_s),
+            **_limits(task),
         )
+        check_task(model, built)
+        return built
     except ParameterError as exc:
-        raise _engine_error(exc, "line", loc) from None
+        raise _engine_error(exc, "line", loc, model) from None
 
 
 def metrics_out(m: Metrics) -> dict[str, Any]:
@@ -284,17 +370,31 @@ def metrics_out(m: Metrics) -> dict[str, Any]:
             "time_of_min_singular_value_s": m.time_of_min_singular_value,
             "min_abs_det_gjm": m.min_abs_det_J_g,
             "time_of_min_abs_det_gjm_s": m.time_of_min_abs_det_J_g,
+            "tracks": m.tracks,
+            "max_linear_joint_speed_m_s": m.max_linear_joint_speed,
+            "joint_speed_limit_m_s": m.linear_joint_speed_limit,
+            "position_limits_respected": m.position_limits_respected,
+            "position_limit_joint": m.position_limit_joint + 1 if m.position_limit_joint >= 0 else None,
+            "time_position_limit_left_s": m.time_position_limit_left,
+            "base_attitude_change_max_rad": m.base_rotation_max,
+            "base_attitude_change_final_rad": m.base_rotation_final,
         }
     )
 
 
-def trajectory_out(r: PlanResult) -> dict[str, np.ndarray]:
+def trajectory_out(r: PlanResult, prismatic: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The stored and returned trajectory: numpy arrays (written by :mod:`service.jsonio`, NaN as
-    null)."""
+    null). With ``prismatic (n,)`` flags, those joints' columns are NaN in the degree arrays and
+    filled (m, m/s) in ``joint_displacements_m`` and ``joint_velocities_m_s``."""
+    joints: dict[str, np.ndarray] = {"joint_angles_deg": np.degrees(r.q), "joint_velocities_deg_s": np.degrees(r.qd)}
+    if prismatic is not None and np.any(prismatic):
+        joints["joint_angles_deg"][:, prismatic] = np.nan
+        joints["joint_velocities_deg_s"][:, prismatic] = np.nan
+        joints["joint_displacements_m"] = np.where(prismatic, r.q, np.nan)
+        joints["joint_velocities_m_s"] = np.where(prismatic, r.qd, np.nan)
     return {
         "t_s": r.t,
-        "joint_angles_deg": np.degrees(r.q),
-        "joint_velocities_deg_s": np.degrees(r.qd),
+        **joints,
         "base_position_m": r.base_position,
         "base_attitude_quaternion": _quats(r.base_attitude),
         "ee_position_m": r.ee_position,

@@ -78,6 +78,16 @@ class PlanData:
         self.t = _arr(traj["t_s"])
         self.q_deg = _arr(traj["joint_angles_deg"], 2)
         self.qd_deg_s = _arr(traj["joint_velocities_deg_s"], 2)
+        # joint positions in SI (rad, and m for prismatic joints, which are NaN in q_deg)
+        q_m, qd_m = traj.get("joint_displacements_m"), traj.get("joint_velocities_m_s")
+        #: ``(n,)`` which joints are prismatic: their columns are in the ``_m`` arrays, NaN in the degree ones
+        self.prismatic = np.zeros(self.q_deg.shape[1:], dtype=bool)
+        if q_m is not None:
+            self.prismatic = np.isfinite(_arr(q_m, 2)).any(axis=0)
+        q = np.radians(self.q_deg)
+        self.q = np.where(self.prismatic, _arr(q_m, 2), q) if q_m is not None else q
+        qd = np.radians(self.qd_deg_s)
+        self.qd = np.where(self.prismatic, _arr(qd_m, 2), qd) if qd_m is not None else qd
         self.base_position = _arr(traj["base_position_m"], 2)
         self.base_quat = _arr(traj["base_attitude_quaternion"], 2)
         self.ee_position = _arr(traj["ee_position_m"], 2)
@@ -290,13 +300,28 @@ def fig_gjm_determinant(data: PlanData) -> Figure:
 def fig_joint_velocities(data: PlanData) -> Figure:
     """Joint speeds in deg/s with the speed limit (paper Figs. 6 and 9)."""
     fig, (ax,) = _new(1, _title(data, "Joint velocities"))
-    for j in range(data.qd_deg_s.shape[1]):
-        _line(ax, data.t, data.qd_deg_s[:, j], label=f"joint {j + 1}", drawstyle="steps-post")
+    prismatic = data.prismatic
+    for j in np.flatnonzero(~prismatic):
+        _line(ax, data.t, data.qd_deg_s[:, j], label=f"joint {j + 1}", drawstyle="steps-post", color=f"C{j % 10}")
     limit = data.speed_limit_deg_s
     if limit is not None:
         ax.axhline(limit, color="C3", linestyle="--", linewidth=1, label=f"limit ±{limit:g} deg/s")
         ax.axhline(-limit, color="C3", linestyle="--", linewidth=1)
     ax.set_ylabel("joint velocity [deg/s]")
+    if prismatic.any():  # prismatic joints in m/s, on their own axis
+        ax_m = ax.twinx()
+        for j in np.flatnonzero(prismatic):
+            _line(
+                ax_m,
+                data.t,
+                data.qd[:, j],
+                label=f"joint {j + 1} [m/s]",
+                drawstyle="steps-post",
+                color=f"C{j % 10}",
+                linestyle="--",
+            )
+        ax_m.set_ylabel("prismatic joint velocity [m/s]")
+        _legend(ax_m, 1)
     _shade([ax], data, legend_on=ax)
     _legend(ax, 2)
     return fig
@@ -305,9 +330,16 @@ def fig_joint_velocities(data: PlanData) -> Figure:
 def fig_joint_angles(data: PlanData) -> Figure:
     """Joint angles in deg (paper Fig. 8)."""
     fig, (ax,) = _new(1, _title(data, "Joint angles"))
-    for j in range(data.q_deg.shape[1]):
-        _line(ax, data.t, data.q_deg[:, j], label=f"joint {j + 1}")
+    prismatic = data.prismatic
+    for j in np.flatnonzero(~prismatic):
+        _line(ax, data.t, data.q_deg[:, j], label=f"joint {j + 1}", color=f"C{j % 10}")
     ax.set_ylabel("joint angle [deg]")
+    if prismatic.any():  # prismatic joints in metres, on their own axis
+        ax_m = ax.twinx()
+        for j in np.flatnonzero(prismatic):
+            _line(ax_m, data.t, data.q[:, j], label=f"joint {j + 1} [m]", color=f"C{j % 10}", linestyle="--")
+        ax_m.set_ylabel("prismatic joint position [m]")
+        _legend(ax_m, 1)
     _shade([ax], data, legend_on=ax)
     _legend(ax, 2)
     return fig
@@ -390,7 +422,7 @@ def arm_polylines(data: PlanData, count: int = SCENE_INSTANTS) -> tuple[np.ndarr
     """Times ``(K,)`` and the arm at ``K`` (at most ``count``) evenly spread finite samples: each
     ``(n + 2, 3)`` points base CoM, joints 1..n, end effector (m, world), from the plan's joint
     angles and base pose and the robot's forward kinematics. Empty without the robot."""
-    if not data.robot or data.q_deg.size == 0:
+    if not data.robot or data.q.size == 0:
         return np.zeros(0), []
     try:
         model = RobotModel.from_dict(data.robot)
@@ -398,14 +430,14 @@ def arm_polylines(data: PlanData, count: int = SCENE_INSTANTS) -> tuple[np.ndarr
         return np.zeros(0), []
     R = _rotations(data.base_quat)
     finite = np.flatnonzero(
-        np.all(np.isfinite(data.q_deg), axis=1)
+        np.all(np.isfinite(data.q), axis=1)
         & np.all(np.isfinite(data.base_position), axis=1)
         & np.all(np.isfinite(R), axis=(1, 2))
     )
-    if finite.size == 0 or data.q_deg.shape[1] != model.n_joints:
+    if finite.size == 0 or data.q.shape[1] != model.n_joints:
         return np.zeros(0), []
     index = finite[np.unique(np.linspace(0, finite.size - 1, min(count, finite.size)).round().astype(int))]
-    kin = kinematics_batch(model, np.radians(data.q_deg[index]), R[index], data.base_position[index])
+    kin = kinematics_batch(model, data.q[index], R[index], data.base_position[index])
     lines = [
         np.concatenate([data.base_position[k][None], kin.joint_positions[i], kin.ee_position[i][None]])
         for i, k in enumerate(index)

@@ -9,8 +9,11 @@ otherwise :func:`upgrade` refuses with :class:`MigrationError`, saying what to d
 
 from __future__ import annotations
 
+import functools
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from alembic import command
 from alembic.config import Config
@@ -23,6 +26,9 @@ import migrations
 from service.db import Database, ensure_sqlite_dir, make_engine
 from service.models import Base, Robot
 
+if TYPE_CHECKING:
+    from engine import RobotModel
+
 PRESET_ROBOT_ID = "table1"
 log = logging.getLogger("spacearm.migrate")
 
@@ -30,6 +36,17 @@ log = logging.getLogger("spacearm.migrate")
 class MigrationError(Exception):
     """The database is in a state ``spacearm migrate`` will not touch; the message says why and
     what to do."""
+
+
+def preset_robots() -> dict[str, Callable[[], RobotModel]]:
+    """The robots every database starts with: the paper's Table-1 robot and the URDF examples (a
+    7-joint arm on a spacecraft, a 3-joint arm), each built only when missing (reading a URDF
+    imports its parser, about a second). The engine (numba) is imported only once the schema
+    exists, so a bare ``spacearm migrate`` stays light."""
+    from engine import table1_robot, urdf_robot
+    from engine.model import URDF_PRESETS
+
+    return {PRESET_ROBOT_ID: table1_robot, **{name: functools.partial(urdf_robot, name) for name in URDF_PRESETS}}
 
 
 def alembic_config(url: str) -> Config:
@@ -93,13 +110,12 @@ def current_revision(engine: Engine) -> str | None:
 
 
 def seed_presets(db: Database) -> None:
-    """Insert the Table-1 robot preset if it is missing (idempotent)."""
-    from engine import table1_robot  # the engine (numba) is only needed once the schema exists
-
-    try:
-        with db.session() as session:
-            if session.scalar(select(Robot.id).where(Robot.id == PRESET_ROBOT_ID)) is None:
-                model = table1_robot()
-                session.add(Robot(id=PRESET_ROBOT_ID, name=model.name, parameters=model.to_dict(), preset=True))
-    except IntegrityError:  # another process seeded it at the same time
-        pass
+    """Insert the preset robots that are missing (idempotent)."""
+    for robot_id, build in preset_robots().items():
+        try:
+            with db.session() as session:
+                if session.scalar(select(Robot.id).where(Robot.id == robot_id)) is None:
+                    model = build()
+                    session.add(Robot(id=robot_id, name=model.name, parameters=model.to_dict(), preset=True))
+        except IntegrityError:  # another process seeded it at the same time
+            pass

@@ -1,5 +1,10 @@
 """Request and response bodies (pydantic). SI units; angles in degrees only where a name ends
-in ``_deg`` (or ``_deg_s``); quaternions are ``[w, x, y, z]``."""
+in ``_deg`` (or ``_deg_s``); quaternions are ``[w, x, y, z]``.
+
+Joint positions come in two index-aligned lists, one per unit: ``..._deg`` holds the revolute
+joints (deg) and ``..._m`` the prismatic ones (m), each with null at the joints of the other
+type (a list may be left out when the robot has no joint of its unit). So an all-revolute robot
+keeps its plain ``q0_deg`` list."""
 
 from __future__ import annotations
 
@@ -21,10 +26,12 @@ from pydantic_core import CoreSchema
 
 from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, check_weights
 from engine.paths import ARC_ATTITUDES, MAX_PASSES, MAX_WAYPOINTS, PATH_TYPES
+from engine.redundancy import MAX_CENTERING_GAIN
 from engine.shortest import DEFAULT_RELATIVE_TOLERANCE
 from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
 from engine.trajectory import MAX_DURATION_S, MIN_DT_S, PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY
 from engine.tuning import MAX_BITS_PER_GENE, MAX_GENERATIONS, MAX_POPULATION
+from engine.urdf import MAX_URDF_BYTES
 
 # Every number in a request is bounded (an overflow inside the engine is ruled out by the schema).
 MAX_LENGTH_M = 1e3
@@ -52,6 +59,10 @@ Inertia = Annotated[
 ]
 RotationRow = Annotated[list[Annotated[float, Field(ge=-1.000001, le=1.000001)]], Field(min_length=3, max_length=3)]
 Rotation = Annotated[list[RotationRow], Field(min_length=3, max_length=3, description="a rotation matrix (orthonormal, det +1)")]
+JointValue = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
+#: Joint positions of one unit, index-aligned with the robot's joints (null: a joint of the other unit).
+JointValues = Annotated[list[JointValue | None], Field(min_length=1, max_length=12)]
+LimitValue = Annotated[float, Field(ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
 
 # The objective's options, as the engine defines them (checked below so the two cannot drift).
 AggregationName = Literal["max", "rms", "final"]
@@ -124,21 +135,33 @@ class Input(BaseModel):
 
 
 class BaseParams(Input):
+    name: str | None = Field(default=None, max_length=200, description="the base link's name (default `base`)")
     mass: Mass
     inertia: Inertia = Field(description="kg m^2 about the base CoM, base frame")
     b: Vec3 = Field(description="m, base CoM to joint 1, base frame")
 
 
+class JointLimits(Input):
+    lower: LimitValue | None = Field(default=None, description="rad (revolute) or m (prismatic); null: unlimited below")
+    upper: LimitValue | None = Field(default=None, description="rad (revolute) or m (prismatic); null: unlimited above")
+
+
 class LinkParams(Input):
     name: str | None = Field(default=None, max_length=200)
     mass: Mass
+    joint_type: Literal["revolute", "prismatic"] = Field(
+        default="revolute", description="revolute: q in rad about joint_axis; prismatic: q in m along it"
+    )
+    joint_name: str | None = Field(default=None, max_length=200, description="the joint's name (default `joint<i>`)")
     joint_axis: Vec3 = Field(description="joint axis in the link frame (normalised; must not be zero)")
-    a: Vec3 = Field(description="m, joint i to link i CoM, link frame")
+    a: Vec3 = Field(description="m, joint i to link i CoM (at q = 0), link frame")
     b: Vec3 = Field(description="m, link i CoM to joint i+1 (or the end effector), link frame")
     inertia: Inertia = Field(description="kg m^2 about the link CoM, link frame")
+    limits: JointLimits | None = Field(default=None, description="position limits (SI); null: unlimited")
 
 
 class EndEffectorParams(Input):
+    name: str | None = Field(default=None, max_length=200, description="the end-effector frame's name")
     C_e: Rotation = Field(description="end-effector frame in the last link's frame (rotation matrix)")
 
 
@@ -151,12 +174,44 @@ class RobotParams(Input):
     end_effector: EndEffectorParams | None = None
 
 
+class RobotUrdfIn(Input):
+    """A robot from a URDF file, sent as text in the JSON body (``urdf``): the root link is the
+    floating base, fixed joints are merged, the chain runs to ``end_effector_link``."""
+
+    model_config = ConfigDict(
+        allow_inf_nan=False,
+        json_schema_extra={"examples": [{"urdf": "<robot name='my-arm'>...</robot>", "end_effector_link": "tool0"}]},
+    )
+
+    urdf: str = Field(min_length=1, max_length=MAX_URDF_BYTES, description="the URDF document (XML text, no DTD)")
+    end_effector_link: str | None = Field(
+        default=None, max_length=200, description="the end-effector link; default: the only leaf after the last moving joint"
+    )
+    tool_position_m: Vec3 | None = Field(default=None, description="tool offset: position in end_effector_link's frame, m")
+    tool_attitude_quaternion: Quaternion | None = Field(
+        default=None, description="tool offset: attitude in end_effector_link's frame [w, x, y, z] (default identity)"
+    )
+    name: str | None = Field(default=None, min_length=1, max_length=200, description="the robot's name (default: the URDF's)")
+
+
+class JointOut(BaseModel):
+    name: str
+    type: Literal["revolute", "prismatic"]
+    unit: Literal["deg", "m"] = Field(description="the unit of its position in the API: `_deg` or `_m` lists")
+    lower_deg: float | None = Field(default=None, description="revolute joints: lower position limit, deg (null: unlimited)")
+    upper_deg: float | None = None
+    lower_m: float | None = Field(default=None, description="prismatic joints: lower position limit, m (null: unlimited)")
+    upper_m: float | None = None
+
+
 class RobotOut(BaseModel):
     id: str
     name: str
     preset: bool
     n_joints: int
-    parameters: dict[str, Any]
+    parameters: dict[str, Any] = Field(description="the parameter set (SI units; derived from the URDF for URDF robots)")
+    joints: list[JointOut] = Field(default_factory=list, description="the joints in chain order, with their units and limits")
+    notes: list[str] = Field(default_factory=list, description="what the service assumed, e.g. joints without limits")
     created_at: datetime
 
 
@@ -166,8 +221,11 @@ class RobotList(BaseModel):
 
 
 class JacobianRequest(Input):
-    joint_angles_deg: list[AngleDeg] = Field(
-        min_length=1, max_length=12, examples=[list(PAPER_Q0_DEG)], description="deg, one per joint of the robot"
+    joint_angles_deg: JointValues | None = Field(
+        default=None, description="revolute joint angles, deg (null at prismatic joints)", examples=[list(PAPER_Q0_DEG)]
+    )
+    joint_displacements_m: JointValues | None = Field(
+        default=None, description="prismatic joint positions, m (null at revolute joints)"
     )
     base_position_m: Vec3 | None = Field(default=None, description="base CoM in world, m (default origin)")
     base_attitude_quaternion: Quaternion | None = Field(default=None, description="base attitude [w, x, y, z] (default identity)")
@@ -313,14 +371,23 @@ class TaskIn(Input):
 
     model_config = ConfigDict(json_schema_extra={"examples": [PAPER_TASK_EXAMPLE]}, allow_inf_nan=False)
 
-    q0_deg: list[AngleDeg] = Field(
-        min_length=1, max_length=12, description="initial joint angles, deg; one per joint of the robot"
+    q0_deg: JointValues | None = Field(
+        default=None, description="initial joint angles of the revolute joints, deg (null at prismatic joints)"
+    )
+    q0_m: JointValues | None = Field(
+        default=None, description="initial positions of the prismatic joints, m (null at revolute joints)"
+    )
+    tracks: Literal["pose", "position"] = Field(
+        default="pose",
+        description="what the plan follows: the whole `pose` (needs 6 joints or more) or the `position` only (3 or more)",
     )
     target_position_m: Vec3 | None = Field(
         default=None, description="target end-effector position, m (line paths only, required)"
     )
     target_attitude_quaternion: Quaternion | None = Field(
-        default=None, description="target end-effector attitude [w, x, y, z] (line paths only, required; normalised)"
+        default=None,
+        description="target end-effector attitude [w, x, y, z] (line paths only, normalised; required for pose tasks, "
+        "position tasks keep the start one)",
     )
     duration_s: float | None = Field(
         default=None,
@@ -331,7 +398,12 @@ class TaskIn(Input):
     ramp_time_s: float = Field(default=1.5, ge=0, le=300, description="s, trapezoidal profile only; at most duration_s / 2")
     dt_s: float = Field(default=0.25, ge=MIN_DT_S, le=1, description="planner step, s; duration_s / dt_s at most 20,000 steps")
     profile: Literal["trapezoidal", "quintic"] = Field(default="trapezoidal", description="time law of line and arc paths")
-    joint_speed_limit_deg_s: float = Field(default=6.0, gt=0, le=MAX_MAGNITUDE, description="symmetric joint speed limit, deg/s")
+    joint_speed_limit_deg_s: float = Field(
+        default=6.0, gt=0, le=MAX_MAGNITUDE, description="symmetric speed limit of the revolute joints, deg/s"
+    )
+    joint_speed_limit_m_s: float | None = Field(
+        default=None, gt=0, le=MAX_MAGNITUDE, description="symmetric speed limit of the prismatic joints, m/s (null: none)"
+    )
     path: PathIn = Field(default_factory=LinePathIn, description="the path type and its parameters (default: line)")
 
 
@@ -355,6 +427,22 @@ class MethodIn(Input):
     name: str = Field(default="adaptive", max_length=40, description="inverse: inverse, dls, adaptive, wdls, sdls, svf")
     params: dict[Annotated[str, Field(max_length=40)], Magnitude] = Field(
         default_factory=dict, max_length=4, description="method parameters; missing ones take defaults"
+    )
+
+
+class SecondaryIn(Input):
+    """A secondary objective in the null space of a redundant arm (more joints than the task
+    tracks: 7+ for a pose, 4+ for a position)."""
+
+    objective: Literal["min_base_rotation", "joint_centering"] = Field(
+        description="`min_base_rotation`: keep the carrier's attitude still (reaction null space); "
+        "`joint_centering`: pull the joints towards the middle of their limits"
+    )
+    gain: float | None = Field(
+        default=None,
+        ge=0,
+        le=MAX_CENTERING_GAIN,
+        description="min_base_rotation: in [0, 1] (1 = the full minimiser, default 1); joint_centering: 1/s (default 0.5)",
     )
 
 
@@ -424,6 +512,7 @@ class PlanRequest(OneRobot):
     weights: Weights = [0.5, 0.5]
     attitude_term: AttitudeTerm = "eq18"
     replay: bool = Field(default=True, description="re-integrate the plan with solve_ivp and report the gaps")
+    secondary: SecondaryIn | None = Field(default=None, description="a null-space objective for a redundant arm")
 
 
 class PlanMetrics(BaseModel):
@@ -445,14 +534,26 @@ class PlanMetrics(BaseModel):
     joint_speed_limit_respected: bool
     min_singular_value: float | None
     time_of_min_singular_value_s: float | None
-    min_abs_det_gjm: float | None
+    min_abs_det_gjm: float | None = Field(description="of the tracked rows of the GJM when they are square; else null")
     time_of_min_abs_det_gjm_s: float | None
+    tracks: Literal["pose", "position"] = "pose"
+    max_linear_joint_speed_m_s: float | None = Field(default=None, description="prismatic joints (0 without any)")
+    joint_speed_limit_m_s: float | None = None
+    position_limits_respected: bool | None = None
+    position_limit_joint: int | None = Field(default=None, description="the first joint (1-based) found outside its limits")
+    time_position_limit_left_s: float | None = None
+    base_attitude_change_max_rad: float | None = Field(default=None, description="the carrier's largest rotation from its start")
+    base_attitude_change_final_rad: float | None = None
 
 
 class Trajectory(BaseModel):
     t_s: list[float]
-    joint_angles_deg: list[list[float | None]]
+    joint_angles_deg: list[list[float | None]] = Field(description="revolute joints, deg (null in prismatic columns)")
     joint_velocities_deg_s: list[list[float | None]]
+    joint_displacements_m: list[list[float | None]] | None = Field(
+        default=None, description="prismatic joints, m (null in revolute columns); only for robots with prismatic joints"
+    )
+    joint_velocities_m_s: list[list[float | None]] | None = None
     base_position_m: list[list[float | None]]
     base_attitude_quaternion: list[list[float | None]]
     ee_position_m: list[list[float | None]]

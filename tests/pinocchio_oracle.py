@@ -13,14 +13,15 @@ def build_pinocchio_model(model: RobotModel) -> tuple[pin.Model, int]:
 
     Joint i's frame sits at joint i with the attitude of link i, so each joint placement
     is a pure translation ``a_{i-1} + b_{i-1}`` (``b_0`` for joint 1) and each body's CoM
-    lever is ``a_i``.
+    lever is ``a_i`` (a prismatic joint's frame slides along its axis with the body).
     """
     pm = pin.Model()
     parent = pm.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "base")
     pm.appendBodyToJoint(parent, pin.Inertia(model.base.mass, np.zeros(3), np.array(model.base.inertia)), pin.SE3.Identity())
     offset = np.array(model.base.b)
     for link in model.links:
-        jm = pin.JointModelRevoluteUnaligned(np.array(link.joint_axis))
+        axis = np.array(link.joint_axis)
+        jm = pin.JointModelPrismaticUnaligned(axis) if link.prismatic else pin.JointModelRevoluteUnaligned(axis)
         parent = pm.addJoint(parent, jm, pin.SE3(np.eye(3), offset), link.name)
         pm.appendBodyToJoint(parent, pin.Inertia(link.mass, np.array(link.a), np.array(link.inertia)), pin.SE3.Identity())
         offset = np.array(link.a) + np.array(link.b)

@@ -19,14 +19,17 @@ def random_inertia(rng: np.random.Generator, scale: float) -> list[list[float]]:
     return (scale * R @ np.diag(principal) @ R.T).tolist()
 
 
-def random_robot_dict(rng: np.random.Generator, n_joints: int) -> dict:
+def random_robot_dict(rng: np.random.Generator, n_joints: int, prismatic: float = 0.0) -> dict:
+    """A random robot; each joint is prismatic with probability ``prismatic`` (else revolute)."""
     links = []
     for i in range(n_joints):
         axis = rng.normal(size=3)
+        slides = prismatic > 0.0 and bool(rng.uniform() < prismatic)  # no draw otherwise: the same robots as before
         links.append(
             {
                 "name": f"l{i}",
                 "mass": float(rng.uniform(0.5, 15.0)),
+                "joint_type": "prismatic" if slides else "revolute",
                 "joint_axis": (axis / np.linalg.norm(axis)).tolist(),
                 "a": rng.uniform(-0.5, 0.5, 3).tolist(),
                 "b": rng.uniform(-0.5, 0.5, 3).tolist(),
@@ -45,5 +48,5 @@ def random_robot_dict(rng: np.random.Generator, n_joints: int) -> dict:
     }
 
 
-def random_robot(rng: np.random.Generator, n_joints: int) -> RobotModel:
-    return RobotModel.from_dict(random_robot_dict(rng, n_joints))
+def random_robot(rng: np.random.Generator, n_joints: int, prismatic: float = 0.0) -> RobotModel:
+    return RobotModel.from_dict(random_robot_dict(rng, n_joints, prismatic))

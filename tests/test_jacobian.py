@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 from oracle.kinematics import kinematics_batch as oracle_kinematics
 from oracle.replay import momentum
 from pinocchio_oracle import build_pinocchio_model, pinocchio_configuration, pinocchio_gjm
@@ -28,15 +29,21 @@ def test_gjm_matches_pinocchio_table1(robot, rng):
     assert _max_gap_to_pinocchio(robot, rng, 60) < 1e-9
 
 
-def test_gjm_matches_pinocchio_random_robots(rng):
-    for n in (3, 4, 5, 6, 7):
+@pytest.mark.parametrize("prismatic", [0.0, 0.5])
+def test_gjm_matches_pinocchio_random_robots(rng, prismatic):
+    for n in (3, 4, 5, 6, 7, 12):
         for _ in range(2):
-            assert _max_gap_to_pinocchio(random_robot(rng, n), rng, 25) < 1e-9
+            assert _max_gap_to_pinocchio(random_robot(rng, n, prismatic=prismatic), rng, 25) < 1e-9
 
 
-def test_gjm_is_derivative_of_momentum_conserving_motion(robot, rng):
+@pytest.mark.parametrize("prismatic", [False, True])
+def test_gjm_is_derivative_of_momentum_conserving_motion(robot, rng, prismatic):
     """Move a tiny step forwards and backwards with the base reacting (angular momentum via
-    the base map, CoM fixed) and compare the end-effector displacement with J_g qd."""
+    the base map, CoM fixed) and compare the end-effector displacement with J_g qd (the
+    Table-1 robot, and a random robot with prismatic joints)."""
+    if prismatic:
+        robot = random_robot(rng, 6, prismatic=0.5)
+        assert robot.prismatic.any()
     q = rng.uniform(-np.pi, np.pi, 6)
     qd = rng.normal(size=6)
     A0 = exp_so3(rng.normal(size=3))
@@ -53,13 +60,14 @@ def test_gjm_is_derivative_of_momentum_conserving_motion(robot, rng):
     np.testing.assert_allclose(base_map[0, :3] @ qd, v0_fd, atol=1e-7)
 
 
-def test_infinite_base_mass_gives_fixed_base_jacobian(rng):
-    d = random_robot_dict(rng, 6)
+@pytest.mark.parametrize("prismatic", [0.0, 0.5])
+def test_infinite_base_mass_gives_fixed_base_jacobian(rng, prismatic):
+    d = random_robot_dict(rng, 6, prismatic)
     d["base"]["mass"] = 1e13
     d["base"]["inertia"] = (np.eye(3) * 1e13).tolist()
     model = RobotModel.from_dict(d)
     s = _random_state(rng, 6)
-    J_fixed = fixed_base_jacobian_batch(state_kinematics(model, s))[0]
+    J_fixed = fixed_base_jacobian_batch(state_kinematics(model, s), model.prismatic)[0]
     np.testing.assert_allclose(generalized_jacobian(model, s).J_g, J_fixed, atol=1e-9)
     # With a light base the two differ: the test can fail.
     assert np.abs(generalized_jacobian(random_robot(rng, 6), s).J_g - J_fixed).max() > 1e-3

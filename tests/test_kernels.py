@@ -9,7 +9,7 @@ from oracle import inverses as oracle_inverses
 from oracle import planner as oracle_planner
 from robots import random_robot
 
-from engine import CartesianTask, make_inverse, method_names, plan, plan_batch
+from engine import CartesianTask, make_inverse, make_secondary, method_names, plan, plan_batch
 from engine.inverses import thin_svd
 from engine.kernels import plan as plan_kernels
 from engine.kernels import svd as svd_kernels
@@ -133,24 +133,46 @@ def _random_task(rng, robot, **options):
     )
 
 
+def _assert_plans_agree(ours, theirs, label):
+    assert ours.metrics.finite == theirs.metrics.finite, label
+    np.testing.assert_allclose(ours.q, theirs.q, atol=1e-9, err_msg=label)
+    np.testing.assert_allclose(ours.base_attitude, theirs.base_attitude, atol=1e-9, err_msg=label)
+    np.testing.assert_allclose(ours.ee_position, theirs.ee_position, atol=1e-9, err_msg=label)
+    np.testing.assert_allclose(ours.singular_values, theirs.singular_values, atol=1e-9, err_msg=label)
+    np.testing.assert_allclose(ours.det_J_g, theirs.det_J_g, rtol=1e-7, atol=1e-12, err_msg=label)
+    assert ours.metrics.position_error_max == pytest.approx(theirs.metrics.position_error_max, rel=1e-6, abs=1e-12)
+
+
 @pytest.mark.parametrize("method", ["dls", "adaptive", "wdls", "sdls", "svf"])
 def test_planner_matches_the_numpy_oracle(robot, task, rng, method):
     """The compiled planner and the numpy planner (LAPACK SVD, the same Magnus step) agree on
-    the paper's task and on random 1- to 12-joint robots, with and without feedback."""
+    the paper's task and on random 3- to 12-joint robots, pose tasks (6 joints or more) and
+    position tasks (3 or more), with and without feedback."""
     cases = [(robot, task)]
-    for n in (1, 3, 5, 7, 9, 12):
+    for n, tracks in ((3, "position"), (5, "position"), (8, "position"), (7, "pose"), (9, "pose"), (12, "pose")):
         r = random_robot(rng, n)
-        cases.append((r, _random_task(rng, r, duration=4.0, ramp_time=0.5, dt=0.1)))
+        cases.append((r, _random_task(rng, r, duration=4.0, ramp_time=0.5, dt=0.1, tracks=tracks)))
     for model, t in cases:
         for gain in (0.0, 2.0):
             ours = plan(model, t, make_inverse(method), feedback_gain=gain)
             theirs = oracle_planner.plan(model, t, oracle_inverses.make_inverse(method), feedback_gain=gain)
-            assert ours.metrics.finite == theirs.metrics.finite
-            np.testing.assert_allclose(ours.q, theirs.q, atol=1e-9, err_msg=f"{method} n={model.n_joints} gain={gain}")
-            np.testing.assert_allclose(ours.base_attitude, theirs.base_attitude, atol=1e-9)
-            np.testing.assert_allclose(ours.ee_position, theirs.ee_position, atol=1e-9)
-            np.testing.assert_allclose(ours.singular_values, theirs.singular_values, atol=1e-9)
-            assert ours.metrics.position_error_max == pytest.approx(theirs.metrics.position_error_max, rel=1e-6, abs=1e-12)
+            _assert_plans_agree(ours, theirs, f"{method} n={model.n_joints} {t.tracks} gain={gain}")
+
+
+@pytest.mark.parametrize("objective", ["min_base_rotation", "joint_centering"])
+def test_secondary_objectives_match_the_numpy_oracle(rng, objective):
+    """The null-space step of the kernel (loops, a 3x3 Cholesky) against the oracle's numpy
+    matrices (the projector I - V V^T, np.linalg.solve), on redundant pose and position tasks."""
+    for n, tracks, gain in ((7, "pose", 1.0), (9, "pose", 0.5), (5, "position", 0.8)):
+        model = random_robot(rng, n)
+        t = _random_task(rng, model, duration=3.0, ramp_time=0.5, dt=0.1, tracks=tracks)
+        secondary = make_secondary(objective, gain)
+        for method in ("adaptive", "sdls"):
+            ours = plan(model, t, make_inverse(method), feedback_gain=1.0, secondary=secondary)
+            theirs = oracle_planner.plan(model, t, oracle_inverses.make_inverse(method), feedback_gain=1.0, secondary=secondary)
+            _assert_plans_agree(ours, theirs, f"{objective} {method} n={n} {tracks}")
+            plain = plan(model, t, make_inverse(method), feedback_gain=1.0)
+            assert np.abs(ours.q - plain.q).max() > 1e-6  # the objective does move the joints
 
 
 def test_plain_inverse_plan_matches_the_oracle_away_from_singularities(rng):
@@ -195,7 +217,21 @@ def test_kernel_stops_at_a_non_finite_twist(robot, task):
     twists[7, 2] = np.nan
     metrics = np.empty(plan_kernels.N_METRICS)
     trace = plan_kernels.empty_trace(6)
-    args = (samples.p_des, samples.A_des, task.dt, 0.0, 1, np.array([0.05, 0.0]), False, trace, metrics)
+    args = (
+        samples.p_des,
+        samples.A_des,
+        task.dt,
+        0.0,
+        1,
+        np.array([0.05, 0.0]),
+        6,
+        0,
+        0.0,
+        task.q0.copy(),
+        False,
+        trace,
+        metrics,
+    )
     plan_kernels.simulate(robot.chain, task.q0.copy(), twists, *args)
     assert metrics[plan_kernels.FINITE] == 0.0 and metrics[plan_kernels.T_DIVERGED] == 7 * task.dt
     assert math.isnan(metrics[plan_kernels.POS_MAX]) and math.isinf(metrics[plan_kernels.MAX_SPEED])

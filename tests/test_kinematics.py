@@ -31,9 +31,10 @@ def test_fk_at_paper_start_pose(robot):
     assert np.all(np.abs(_wrapped(angles - np.array([-3.1416, 0.0, -2.9671]))) < 1e-4)
 
 
-def test_fk_matches_pinocchio_on_random_robots(rng):
+@pytest.mark.parametrize("prismatic", [0.0, 0.5])
+def test_fk_matches_pinocchio_on_random_robots(rng, prismatic):
     for n in (1, 3, 6, 9):
-        model = random_robot(rng, n)
+        model = random_robot(rng, n, prismatic=prismatic)
         pm, fid = build_pinocchio_model(model)
         for _ in range(10):
             q = rng.uniform(-np.pi, np.pi, n)

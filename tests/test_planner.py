@@ -125,6 +125,8 @@ def test_objective_aggregations_and_penalty():
         coupled_error_rms=8e-6,
         coupled_error_final=5e-6,
         joint_speed_limit_respected=np.array([True]),
+        position_limits_respected=np.array([True]),
+        tracks="pose",
     )
     assert objective(m, Objective((0.5, 0.5), "max", "angle"))[0] == pytest.approx(0.007)
     assert objective(m, Objective((0.5, 0.5), "final", "angle"))[0] == pytest.approx(0.004)
@@ -133,6 +135,11 @@ def test_objective_aggregations_and_penalty():
     # eq. 18 as printed is the default
     assert objective(m, Objective((0.5, 0.5), "max"))[0] == pytest.approx(0.5 * 0.004 + 0.5 * 1e-5)
     assert objective(m, Objective((0.5, 0.5), "rms"))[0] == pytest.approx(0.5 * 0.003 + 0.5 * 8e-6)
+    m.tracks = "position"  # the attitude is not tracked: no attitude term
+    assert objective(m, Objective((0.5, 0.5), "max"))[0] == pytest.approx(0.002)
+    m.position_limits_respected = np.array([False])
+    assert math.isinf(objective(m, Objective())[0])
+    m.position_limits_respected = np.array([True])
     m.joint_speed_limit_respected = np.array([False])
     assert math.isinf(objective(m, Objective())[0])
     with pytest.raises(ValueError, match="aggregation"):

@@ -45,7 +45,7 @@ def test_compiled_replay_matches_the_scipy_replay(robot, task):
 
 def _random_task(rng, robot):
     n = robot.n_joints
-    q0 = rng.uniform(-np.pi, np.pi, n)
+    q0 = np.where(robot.prismatic, rng.uniform(-0.3, 0.3, n), rng.uniform(-np.pi, np.pi, n))
     fk = forward_kinematics(robot, as_state(robot, q0))
     return CartesianTask.from_q0(
         robot,
@@ -56,17 +56,24 @@ def _random_task(rng, robot):
         ramp_time=1.0,
         dt=float(rng.choice([0.1, 0.25, 0.5])),
         joint_speed_limit=math.radians(30.0),
+        tracks="pose" if n >= 6 else "position",
     )
 
 
-def test_planned_path_is_the_physical_one_on_random_robots(rng):
-    """Random 3- to 7-joint robots: the planned end-effector path and the replayed one agree to
-    0.5 mm (an explicit Euler step of the base attitude left up to 33 mm here)."""
+@pytest.mark.parametrize("prismatic", [0.0, 0.4])
+def test_planned_path_is_the_physical_one_on_random_robots(rng, prismatic):
+    """Random 3- to 7-joint robots (pose tasks from 6 joints, position tasks below; revolute
+    joints only, or about 40 % prismatic ones): the planned end-effector path and the replayed
+    one agree to 0.5 mm (an explicit Euler step of the base attitude left up to 33 mm here)."""
     gaps = []
     for _ in range(30):
-        robot = random_robot(rng, int(rng.integers(3, 8)))
+        robot = random_robot(rng, int(rng.integers(3, 8)), prismatic=prismatic)
         result = plan(robot, _random_task(rng, robot), make_inverse("dls", **{"lambda": 0.05}))
-        if not result.metrics.finite or result.metrics.max_joint_speed_deg_s > 30.0:
+        if (
+            not result.metrics.finite
+            or result.metrics.max_joint_speed_deg_s > 30.0
+            or result.metrics.max_linear_joint_speed > 0.5
+        ):
             continue
         check = replay(robot, result)
         assert check.success

@@ -4,6 +4,7 @@ time.
 Kinematics (SpaceDyn recursion, link frames parallel to the base frame at q = 0):
 ``A_i = A_{i-1} Rot(s_i, q_i)``, ``p_i = r_{i-1} + A_{i-1} b_{i-1}``, ``r_i = p_i + A_i a_i``,
 ``p_e = r_n + A_n b_n``, ``A_e = A_n C_e``; the joint axis in world is ``k_i = A_{i-1} s_i``.
+A prismatic joint slides instead: ``A_i = A_{i-1}``, ``r_i = p_i + A_i (a_i + s_i q_i)``.
 
 GJM (zero total momentum). Zero linear momentum fixes the system centre of mass ``r_g``, so the
 base rotation follows from the 3x3 angular-momentum balance about it,
@@ -16,6 +17,13 @@ cumulative sum: O(n) per configuration). With ``Omega = -H_s^-1 H_sq`` (a Choles
   ``h_j = (M_j / M)(p_j - r_g) - W_j / M`` (``M_j`` the mass moved by joint j);
 - end effector: ``v_e = v_0 + w_0 x (p_e - r_0) + sum_j k_j x (p_e - p_j) qd_j``,
   ``w_e = w_0 + sum_j k_j qd_j``.
+
+A prismatic joint j moves its bodies by ``k_j qd_j`` without turning them: its column of
+``H_sq`` is ``W_j x k_j``, of the base velocity ``Omega_j x (r_0 - r_g) - (M_j / M) k_j``, and of
+the GJM ``[v_0j + k_j + Omega_j x (p_e - r_0); Omega_j]``.
+
+The loops compute the revolute column and replace it for a prismatic joint (a branch that a
+revolute chain never takes), so revolute chains run the same arithmetic as before.
 
 This is algebraically the textbook ``J_m - J_b H_b^-1 H_bm`` (Umetani and Yoshida 1989), checked
 against Pinocchio in the tests.
@@ -40,6 +48,13 @@ class Chain(NamedTuple):
     b: np.ndarray  # (n+1, 3) m, b_0 (base CoM -> joint 1) then CoM i -> joint i+1 / end effector
     C_e: np.ndarray  # (3, 3) end-effector frame in the last link's frame
     total_mass: float  # kg
+    joints: (
+        np.ndarray
+    )  # (n, 3) per joint: SLIDE (1.0: prismatic, q in m; 0.0: revolute, q in rad), LOWER, UPPER limits (+-inf: none)
+
+
+# Columns of Chain.joints (one array rather than three: kernels pass the chain by value).
+SLIDE, LOWER, UPPER = 0, 1, 2
 
 
 # Buffers are plain tuples of arrays (numba types a tuple and a named tuple differently, and
@@ -90,9 +105,19 @@ def kinematics(ch, q, A0, origin, about_com, kin):
             a2 = att[i, r, 2]
             jpos[i, r] = com[i, r] + a0 * b0 + a1 * b1 + a2 * b2
             jaxis[i, r] = a0 * s0 + a1 * s1 + a2 * s2
-        # Rot(s, q) = cos q I + sin q [s]x + (1 - cos q) s s^T
+        # Rot(s, q) = cos q I + sin q [s]x + (1 - cos q) s s^T; a prismatic joint does not turn
+        # (the identity) but moves the CoM by s q.
         cq = np.cos(q[i])
         sq = np.sin(q[i])
+        a_0 = ch.a[i, 0]
+        a_1 = ch.a[i, 1]
+        a_2 = ch.a[i, 2]
+        if ch.joints[i, SLIDE] != 0.0:
+            cq = 1.0
+            sq = 0.0
+            a_0 += s0 * q[i]
+            a_1 += s1 * q[i]
+            a_2 += s2 * q[i]
         vq = 1.0 - cq
         R00 = cq + vq * s0 * s0
         R01 = vq * s0 * s1 - sq * s2
@@ -103,9 +128,6 @@ def kinematics(ch, q, A0, origin, about_com, kin):
         R20 = vq * s2 * s0 - sq * s1
         R21 = vq * s2 * s1 + sq * s0
         R22 = cq + vq * s2 * s2
-        a_0 = ch.a[i, 0]
-        a_1 = ch.a[i, 1]
-        a_2 = ch.a[i, 2]
         for r in range(3):
             a0 = att[i, r, 0]
             a1 = att[i, r, 1]
@@ -142,16 +164,16 @@ def kinematics(ch, q, A0, origin, about_com, kin):
 
 
 @kernel
-def _add_body(ch, i, att, x, y, z, T, tmp):
-    """``T += A_i I_i A_i^T + m_i (|rho|^2 I - rho rho^T)`` with ``rho = (x, y, z)``: body i's
-    inertia about the system CoM."""
+def _add_body(inertias, m, i, att, x, y, z, T, tmp):
+    """``T += A_i I_i A_i^T + m (|rho|^2 I - rho rho^T)`` with ``rho = (x, y, z)``: body i's
+    inertia about the system CoM. (Helpers in the loops take the arrays they need, not the
+    chain: a call passes its arguments by value, and the chain is a large aggregate.)"""
     for r in range(3):
-        i0 = ch.inertias[i, r, 0]
-        i1 = ch.inertias[i, r, 1]
-        i2 = ch.inertias[i, r, 2]
+        i0 = inertias[i, r, 0]
+        i1 = inertias[i, r, 1]
+        i2 = inertias[i, r, 2]
         for c in range(3):
             tmp[r, c] = i0 * att[i, c, 0] + i1 * att[i, c, 1] + i2 * att[i, c, 2]
-    m = ch.masses[i]
     sq = x * x + y * y + z * z
     for r in range(3):
         rr = x if r == 0 else (y if r == 1 else z)
@@ -189,7 +211,7 @@ def angular_map(ch, kin, g):
         x = com[i, 0] - r_g[0]
         y = com[i, 1] - r_g[1]
         z = com[i, 2] - r_g[2]
-        _add_body(ch, i, att, x, y, z, T, tmp)
+        _add_body(ch.inertias, ch.masses[i], i, att, x, y, z, T, tmp)
         m = ch.masses[i]
         w0 += m * x
         w1 += m * y
@@ -208,11 +230,15 @@ def angular_map(ch, kin, g):
         kc0 = k1 * c2 - k2 * c1
         kc1 = k2 * c0 - k0 * c2
         kc2 = k0 * c1 - k1 * c0
-        # H_sq column j = T k - W x (k x c)
+        # H_sq column j = T k - W x (k x c) (revolute), W x k (prismatic)
         Omega[0, j] = T[0, 0] * k0 + T[0, 1] * k1 + T[0, 2] * k2 - (w1 * kc2 - w2 * kc1)
         Omega[1, j] = T[1, 0] * k0 + T[1, 1] * k1 + T[1, 2] * k2 - (w2 * kc0 - w0 * kc2)
         Omega[2, j] = T[2, 0] * k0 + T[2, 1] * k1 + T[2, 2] * k2 - (w0 * kc1 - w1 * kc0)
-    _add_body(ch, 0, att, com[0, 0] - r_g[0], com[0, 1] - r_g[1], com[0, 2] - r_g[2], T, tmp)
+        if ch.joints[j, SLIDE] != 0.0:
+            Omega[0, j] = w1 * k2 - w2 * k1
+            Omega[1, j] = w2 * k0 - w0 * k2
+            Omega[2, j] = w0 * k1 - w1 * k0
+    _add_body(ch.inertias, ch.masses[0], 0, att, com[0, 0] - r_g[0], com[0, 1] - r_g[1], com[0, 2] - r_g[2], T, tmp)
     # Cholesky of the symmetric positive definite H_s = T, then Omega = -H_s^-1 H_sq.
     l00 = np.sqrt(T[0, 0])
     l10 = T[1, 0] / l00
@@ -264,18 +290,28 @@ def gjm(ch, kin, g):
         v0 = (k1 * h2 - k2 * h1) + (o1 * rho2 - o2 * rho1)
         v1 = (k2 * h0 - k0 * h2) + (o2 * rho0 - o0 * rho2)
         v2 = (k0 * h1 - k1 * h0) + (o0 * rho1 - o1 * rho0)
-        bm[0, j] = v0
-        bm[1, j] = v1
-        bm[2, j] = v2
-        bm[3, j] = o0
-        bm[4, j] = o1
-        bm[5, j] = o2
         J[0, j] = v0 + (k1 * e2 - k2 * e1) + (o1 * pe2 - o2 * pe1)
         J[1, j] = v1 + (k2 * e0 - k0 * e2) + (o2 * pe0 - o0 * pe2)
         J[2, j] = v2 + (k0 * e1 - k1 * e0) + (o0 * pe1 - o1 * pe0)
         J[3, j] = k0 + o0
         J[4, j] = k1 + o1
         J[5, j] = k2 + o2
+        if ch.joints[j, SLIDE] != 0.0:  # the joint slides its bodies along k: -mu k and k instead of k x h and k x e
+            v0 = (o1 * rho2 - o2 * rho1) - mu * k0
+            v1 = (o2 * rho0 - o0 * rho2) - mu * k1
+            v2 = (o0 * rho1 - o1 * rho0) - mu * k2
+            J[0, j] = v0 + k0 + (o1 * pe2 - o2 * pe1)
+            J[1, j] = v1 + k1 + (o2 * pe0 - o0 * pe2)
+            J[2, j] = v2 + k2 + (o0 * pe1 - o1 * pe0)
+            J[3, j] = o0
+            J[4, j] = o1
+            J[5, j] = o2
+        bm[0, j] = v0
+        bm[1, j] = v1
+        bm[2, j] = v2
+        bm[3, j] = o0
+        bm[4, j] = o1
+        bm[5, j] = o2
 
 
 @kernel

@@ -56,16 +56,20 @@ def _clamp_scale(values, limit):
 
 @kernel
 def apply_inverse(method, params, J, U, s, V, xdot, qd, damping, scratch):
-    """Joint rates ``qd (n,)`` for the twist ``xdot (6,)`` given the thin SVD ``U (6, m)``,
-    ``s (m,)``, ``V (n, m)`` of ``J (6, n)``; writes the effective ``damping (m,)``.
-    ``scratch (2, 6)``."""
+    """Joint rates ``qd (n,)`` for the task velocity ``xdot`` (its first ``p`` entries: a twist
+    ``[v; w]`` for ``p = 6``, ``v`` for ``p = 3``) given the thin SVD ``U (p, m)``, ``s (m,)``,
+    ``V (n, m)`` of ``J (p, n)``; writes the effective ``damping (m,)``. ``scratch (2, 6)``."""
     m = s.shape[0]
     n = V.shape[0]
+    pose = U.shape[0] == 6
     proj = scratch[0]
     for i in range(m):
         acc = 0.0
-        for r in range(6):
+        for r in range(3):  # the linear part, then the angular part of a pose (constant trip counts)
             acc += U[r, i] * xdot[r]
+        if pose:
+            for r in range(3, 6):
+                acc += U[r, i] * xdot[r]
         proj[i] = acc
     gain = scratch[1]
     if method == SDLS:
@@ -112,19 +116,22 @@ def apply_inverse(method, params, J, U, s, V, xdot, qd, damping, scratch):
 @kernel
 def _sdls(gamma_max, J, U, s, V, alpha, qd, damping):
     """Selectively damped least squares (Buss and Kim 2005, J. Graphics Tools 10(3)) at the
-    velocity level, the twist split into its linear and angular 3-blocks. Per direction i:
+    velocity level, the twist split into its linear and angular 3-blocks (a position task has
+    the linear block only). Per direction i:
     ``N_i = |u_i,lin| + |u_i,ang|``, ``M_i = sigma_i^-1 sum_j |v_ji| (|J_j,lin| + |J_j,ang|)``,
     ``gamma_i = min(1, N_i / M_i) gamma_max``, ``phi_i = ClampMaxAbs(sigma_i^-1 alpha_i v_i,
     gamma_i)``; ``qd = ClampMaxAbs(sum_i phi_i, gamma_max)``."""
     m = s.shape[0]
     n = V.shape[0]
+    pose = U.shape[0] == 6
     col_norm = np.empty(n)
     for j in range(n):
         lin = 0.0
         ang = 0.0
         for r in range(3):
             lin += J[r, j] * J[r, j]
-            ang += J[r + 3, j] * J[r + 3, j]
+            if pose:
+                ang += J[r + 3, j] * J[r + 3, j]
         col_norm[j] = np.sqrt(lin) + np.sqrt(ang)
     total = np.zeros(n)
     phi = np.empty(n)
@@ -135,7 +142,8 @@ def _sdls(gamma_max, J, U, s, V, alpha, qd, damping):
         ang = 0.0
         for r in range(3):
             lin += U[r, i] * U[r, i]
-            ang += U[r + 3, i] * U[r + 3, i]
+            if pose:
+                ang += U[r + 3, i] * U[r + 3, i]
         N = np.sqrt(lin) + np.sqrt(ang)
         Mi = 0.0
         for j in range(n):
@@ -159,10 +167,10 @@ def _sdls(gamma_max, J, U, s, V, alpha, qd, damping):
 @kernel
 def solve_many(method, params, J, xdot, qd, damping, sv):
     """Cold-started SVD and :func:`apply_inverse` for each member: ``params (B, P)``,
-    ``J (B, 6, n)``, ``xdot (B, 6)``; writes ``qd (B, n)``, ``damping (B, m)``, ``sv (B, m)``."""
+    ``J (B, p, n)``, ``xdot (B, p)``; writes ``qd (B, n)``, ``damping (B, m)``, ``sv (B, m)``."""
     n = J.shape[2]
     for b in range(J.shape[0]):
-        buf = svd_buffers(n)
+        buf = svd_buffers(n, J.shape[1])
         ok, _ = jacobi_svd(J[b], buf, False)
         if ok:
             apply_inverse(method, params[b], J[b], buf[1], buf[2], buf[3], xdot[b], qd[b], damping[b], np.empty((2, 6)))

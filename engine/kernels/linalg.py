@@ -1,6 +1,9 @@
-"""Small dense linear algebra for the kernels: LU with partial pivoting on 6x6 systems."""
+"""Small dense linear algebra for the kernels: LU with partial pivoting on 6x6 systems, the 3x3
+determinant and SPD solve."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from engine.kernels.jit import kernel
 
@@ -57,3 +60,30 @@ def solve6(H, b, x):
             acc -= A[r, c] * x[c]
         x[r] = acc / A[r, r]
     return True
+
+
+@kernel
+def det3(J):
+    """Determinant of a 3x3 matrix ``J``."""
+    return (
+        J[0, 0] * (J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1])
+        - J[0, 1] * (J[1, 0] * J[2, 2] - J[1, 2] * J[2, 0])
+        + J[0, 2] * (J[1, 0] * J[2, 1] - J[1, 1] * J[2, 0])
+    )
+
+
+@kernel
+def solve3_spd(G, b, x):
+    """``x (3,)`` with ``G x = b`` for a symmetric positive definite ``G (3, 3)`` (Cholesky)."""
+    l00 = np.sqrt(G[0, 0])
+    l10 = G[1, 0] / l00
+    l20 = G[2, 0] / l00
+    l11 = np.sqrt(G[1, 1] - l10 * l10)
+    l21 = (G[2, 1] - l20 * l10) / l11
+    l22 = np.sqrt(G[2, 2] - l20 * l20 - l21 * l21)
+    y0 = b[0] / l00
+    y1 = (b[1] - l10 * y0) / l11
+    y2 = (b[2] - l20 * y0 - l21 * y1) / l22
+    x[2] = y2 / l22
+    x[1] = (y1 - l21 * x[2]) / l11
+    x[0] = (y0 - l10 * x[1] - l20 * x[2]) / l00

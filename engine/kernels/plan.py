@@ -4,32 +4,39 @@ At each sample ``t_k = k dt`` (k = 0..N): the kinematics and GJM at ``q_k`` in t
 (base attitude the identity, system CoM at the origin: both follow from rigid motions, so the
 world quantities are rotations of these by the base attitude ``A_0`` and a shift by the fixed
 system CoM); the commanded twist (the path's mean twist over the step plus ``gain *
-pose_error``) rotated into the base frame; the thin SVD (warm-started) and the robust inverse,
-giving ``qd_k``. Then the paper's joint update ``q_{k+1} = q_k + qd_k dt`` and the base attitude
-integrated over the step along that linear joint motion: the base angular velocity in the base
-frame, ``w_b(t) = Omega_b(q_k + (t - t_k) qd_k) qd_k``, depends on the joints only, so
-``dA_0/dt = A_0 [w_b]x`` is integrated with the fourth-order Magnus method on Simpson's nodes,
-``A_0 <- A_0 exp(h/6 (w_a + 4 w_m + w_b) + h^2/12 w_a x w_b)``, on sub-steps ``h`` short enough
-that no joint turns more than ``SUBSTEP_ANGLE`` in one (one sub-step in ordinary plans; the end
-point is the next step's configuration, so a sub-step costs one extra evaluation).
+pose_error``) rotated into the base frame; the thin SVD (warm-started) of the tracked rows of
+the GJM (all six for a pose task, the three linear ones for a position task) and the robust
+inverse, giving ``qd_k``, plus the secondary objective's null-space motion on a redundant arm
+(:mod:`engine.kernels.redundancy`). Then the paper's joint update ``q_{k+1} = q_k + qd_k dt``
+and the base attitude integrated over the step along that linear joint motion: the base angular
+velocity in the base frame, ``w_b(t) = Omega_b(q_k + (t - t_k) qd_k) qd_k``, depends on the
+joints only, so ``dA_0/dt = A_0 [w_b]x`` is integrated with the fourth-order Magnus method on
+Simpson's nodes, ``A_0 <- A_0 exp(h/6 (w_a + 4 w_m + w_b) + h^2/12 w_a x w_b)``, on sub-steps
+``h`` short enough that no revolute joint turns more than ``SUBSTEP_ANGLE`` and no prismatic
+joint slides more than ``SUBSTEP_LENGTH`` in one (one sub-step in ordinary plans; the end point
+is the next step's configuration, so a sub-step costs one extra evaluation).
 
 Metrics are accumulated as the plan runs (no per-sample storage needed): errors (max, RMS,
-final), per-joint peak speeds, the smallest singular value and |det J_g| with their times.
-A non-finite Jacobian or joint rate ends the plan as diverged.
+final), per-joint peak speeds (revolute and prismatic apart), the smallest singular value and
+|det| of the tracked Jacobian when it is square, with their times, the first sample where a
+joint is outside its position limits, and the carrier's rotation from its start. A non-finite
+Jacobian or joint rate ends the plan as diverged.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from engine.kernels.chain import angular_map, gjm, gjm_buffers, kinematics, kinematics_buffers
+from engine.kernels.chain import LOWER, SLIDE, UPPER, angular_map, gjm, gjm_buffers, kinematics, kinematics_buffers
 from engine.kernels.inverse import apply_inverse
 from engine.kernels.jit import kernel
-from engine.kernels.linalg import det6
-from engine.kernels.so3 import exp_so3, log_so3
+from engine.kernels.linalg import det3, det6
+from engine.kernels.redundancy import NONE, null_space_step
+from engine.kernels.so3 import exp_so3, log_so3, rotation_angle
 from engine.kernels.svd import jacobi_svd, svd_buffers
 
-SUBSTEP_ANGLE = 0.25  # rad of joint travel per attitude sub-step
+SUBSTEP_ANGLE = 0.25  # rad of revolute joint travel per attitude sub-step
+SUBSTEP_LENGTH = 0.1  # m of prismatic joint travel per attitude sub-step
 MAX_SUBSTEPS = 64
 REFRESH_EVERY = 16  # steps between re-orthonormalisations of the SVD's warm start
 
@@ -41,7 +48,10 @@ MAX_SPEED, MAX_SPEED_JOINT = 9, 10
 MIN_SIGMA, T_MIN_SIGMA = 11, 12
 MIN_DET, T_MIN_DET = 13, 14
 FINITE, T_DIVERGED = 15, 16
-N_METRICS = 17
+MAX_LIN_SPEED, MAX_LIN_SPEED_JOINT = 17, 18
+LIMIT_JOINT, T_LIMIT, LIMIT_EXCESS = 19, 20, 21
+BASE_ROT_MAX, BASE_ROT_FINAL = 22, 23
+N_METRICS = 24
 
 
 @kernel
@@ -79,7 +89,8 @@ def advance(ch, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work):
     """One planner step from ``q (n,)``: ``q_next = q + qd dt``, whose base-frame kinematics
     and GJM go to ``kin`` and ``g`` (which on entry hold those of ``q``), and the base attitude
     ``A0 (3, 3)`` advanced in place along the joint line ``q + (t - t_k) qd`` by fourth-order
-    Magnus on Simpson's nodes over sub-steps of at most ``SUBSTEP_ANGLE`` joint travel.
+    Magnus on Simpson's nodes over sub-steps of at most ``SUBSTEP_ANGLE`` (revolute) or
+    ``SUBSTEP_LENGTH`` (prismatic) joint travel.
 
     ``dA_0/dt = A_0 [w_b]x`` with the base-frame rate ``w_b = Omega_b(q(t)) qd`` (it does not
     depend on ``A_0``); over a sub-step ``h`` from ``w_a`` via ``w_m`` to ``w_b``:
@@ -88,10 +99,11 @@ def advance(ch, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work):
     q_sub, wa, wm, wb, phi, R, A_tmp, eye, zero = work
     n = q.shape[0]
     Omega = g[2]
-    travel = 0.0
+    travel = 0.0  # in sub-steps
     for j in range(n):
-        travel = max(travel, abs(qd[j]) * dt)
-    S = min(MAX_SUBSTEPS, max(1, int(np.ceil(travel / SUBSTEP_ANGLE))))
+        per_substep = 1.0 / SUBSTEP_ANGLE + ch.joints[j, SLIDE] * (1.0 / SUBSTEP_LENGTH - 1.0 / SUBSTEP_ANGLE)
+        travel = max(travel, abs(qd[j]) * dt * per_substep)
+    S = min(MAX_SUBSTEPS, max(1, int(np.ceil(travel))))
     h = dt / S
     for r in range(3):
         acc = 0.0
@@ -147,9 +159,18 @@ def base_attitude_step(ch, q, qd, dt, A0):
 
 
 @kernel
-def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, trace, metrics):
+def _secondary(objective, objective_gain, sv, g, q, centre, qd, null_work):
+    null_space_step(objective, objective_gain, sv[3], g[2], q, centre, qd, null_work)
+
+
+@kernel
+def simulate(
+    ch, q0, twists, p_des, A_des, dt, gain, method, params, rows, objective, objective_gain, centre, record, trace, metrics
+):
     """Plan one parameter set. ``twists (N+1, 6)`` commanded path twists and ``p_des (N+1, 3)``,
-    ``A_des (N+1, 3, 3)`` desired poses (world); ``gain`` the pose feedback gain (1/s).
+    ``A_des (N+1, 3, 3)`` desired poses (world); ``gain`` the pose feedback gain (1/s);
+    ``rows`` = 6 tracks the pose, 3 the position only; ``objective``, ``objective_gain`` and
+    ``centre (n,)`` the secondary objective (:mod:`engine.kernels.redundancy`).
 
     ``metrics (N_METRICS,)`` is always written. With ``record``, ``trace`` (a tuple of
     ``q (N+1, n)``, ``qd``, ``base_p (N+1, 3)``, ``base_A (N+1, 3, 3)``, ``ee_p``, ``ee_A``,
@@ -158,7 +179,7 @@ def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, tra
     """
     tr_q, tr_qd, tr_bp, tr_bA, tr_ep, tr_eA, tr_sv, tr_det, tr_damp, tr_perr, tr_aerr = trace
     n = q0.shape[0]
-    m = min(6, n)
+    m = min(rows, n)
     N = twists.shape[0] - 1
     eye = np.eye(3)
     zero = np.zeros(3)
@@ -166,13 +187,15 @@ def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, tra
     g = gjm_buffers(n)
     kin_m = kinematics_buffers(n)
     g_m = gjm_buffers(n)
-    sv = svd_buffers(n)
+    sv = svd_buffers(n, rows)
     q = q0.copy()
     q_next = np.empty(n)
     qd = np.empty(n)
     damping = np.empty(m)
     peak = np.zeros(n)
     work = advance_buffers(n)
+    null_work = (np.empty((3, n)), np.empty((3, 6)), np.empty(6), np.empty(n), np.empty((3, 3)), np.empty(3), np.empty(3))
+    redundant = objective != NONE and n > m
     A0 = np.eye(3)
     ee_p = np.empty(3)
     ee_A = np.empty((3, 3))
@@ -187,7 +210,7 @@ def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, tra
     kinematics(ch, q, eye, zero, True, kin)
     gjm(ch, kin, g)
     _, com_b, _, _, ee_p_b, ee_A_b = kin
-    J_b = g[0]
+    J_b = g[0] if rows == 6 else g[0][:3]  # the tracked rows of the GJM (a view: gjm writes in place)
     com_w = np.empty(3)
     for r in range(3):
         com_w[r] = -com_b[0, r]  # the base starts at the world origin with the identity attitude
@@ -205,6 +228,10 @@ def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, tra
     t_min_sigma = np.nan
     min_det = np.inf
     t_min_det = np.nan
+    limit_joint = -1
+    t_limit = np.nan
+    limit_excess = 0.0
+    rot_key = 0.0
     finite = True
     t_div = np.nan
     last = N
@@ -240,6 +267,17 @@ def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, tra
         pos_sq += pos_e * pos_e
         att_sq += att_e * att_e
         cpl_sq += cpl_e * cpl_e
+        # The carrier's rotation from its start, tracked as 3 - trace A_0 = 4 sin^2(angle / 2)
+        # (increasing in the angle; converted once at the end).
+        rot_key = max(rot_key, 3.0 - (A0[0, 0] + A0[1, 1] + A0[2, 2]))
+        for j in range(n):
+            excess = max(ch.joints[j, LOWER] - q[j], q[j] - ch.joints[j, UPPER])
+            if excess > 0.0:
+                if limit_joint < 0:
+                    limit_joint = j
+                    t_limit = t_k
+                if j == limit_joint:
+                    limit_excess = max(limit_excess, excess)
         for r in range(3):
             xdot_b[r] = A0[0, r] * xdot_w[0] + A0[1, r] * xdot_w[1] + A0[2, r] * xdot_w[2]
             xdot_b[r + 3] = A0[0, r] * xdot_w[3] + A0[1, r] * xdot_w[4] + A0[2, r] * xdot_w[5]
@@ -247,6 +285,8 @@ def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, tra
         s = sv[2]
         if ok:
             apply_inverse(method, params, J_b, sv[1], s, sv[3], xdot_b, qd, damping, inv_scratch)
+            if redundant:
+                _secondary(objective, objective_gain, sv, g, q, centre, qd, null_work)
             for j in range(n):
                 if not np.isfinite(qd[j]):
                     ok = False
@@ -255,8 +295,8 @@ def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, tra
             damping[:] = np.nan
         ok = ok and np.isfinite(pos_e) and np.isfinite(att_e)
         det = np.nan
-        if n == 6 and np.isfinite(s[0]):
-            det = det6(J_b, det_scratch)
+        if n == rows and np.isfinite(s[0]):
+            det = det6(J_b, det_scratch) if rows == 6 else det3(J_b)
         if record:
             for j in range(n):
                 tr_q[k, j] = q[j]
@@ -320,27 +360,40 @@ def simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params, record, tra
         metrics[CPL_MAX] = cpl_max
         metrics[CPL_RMS] = np.sqrt(cpl_sq / count)
         metrics[CPL_FINAL] = cpl_e
+        metrics[BASE_ROT_MAX] = 2.0 * np.arcsin(min(1.0, np.sqrt(max(rot_key, 0.0) / 4.0)))
+        metrics[BASE_ROT_FINAL] = rotation_angle(A0)
     else:
         for i in range(CPL_FINAL + 1):
             metrics[i] = np.nan
-    best = 0
-    for j in range(1, n):
-        if peak[j] > peak[best]:
+        metrics[BASE_ROT_MAX] = np.nan
+        metrics[BASE_ROT_FINAL] = np.nan
+    best = -1
+    best_lin = -1
+    for j in range(n):
+        if ch.joints[j, SLIDE] != 0.0:
+            if best_lin < 0 or peak[j] > peak[best_lin]:
+                best_lin = j
+        elif best < 0 or peak[j] > peak[best]:
             best = j
-    metrics[MAX_SPEED] = peak[best]
+    metrics[MAX_SPEED] = peak[best] if best >= 0 else 0.0
     metrics[MAX_SPEED_JOINT] = best
+    metrics[MAX_LIN_SPEED] = peak[best_lin] if best_lin >= 0 else 0.0
+    metrics[MAX_LIN_SPEED_JOINT] = best_lin
     metrics[MIN_SIGMA] = min_sigma
     metrics[T_MIN_SIGMA] = t_min_sigma
-    metrics[MIN_DET] = min_det if n == 6 else np.nan
-    metrics[T_MIN_DET] = t_min_det if n == 6 else np.nan
+    metrics[MIN_DET] = min_det if n == rows else np.nan
+    metrics[T_MIN_DET] = t_min_det if n == rows else np.nan
     metrics[FINITE] = 1.0 if finite else 0.0
     metrics[T_DIVERGED] = t_div
+    metrics[LIMIT_JOINT] = limit_joint
+    metrics[T_LIMIT] = t_limit
+    metrics[LIMIT_EXCESS] = limit_excess if limit_joint >= 0 else np.nan
 
 
 @kernel
-def empty_trace(n):
+def empty_trace(n, rows=6):
     """A trace tuple with no samples (for evaluations that keep only metrics)."""
-    m = min(6, n)
+    m = min(rows, n)
     return (
         np.empty((0, n)),
         np.empty((0, n)),
@@ -357,9 +410,28 @@ def empty_trace(n):
 
 
 @kernel
-def evaluate_range(ch, q0, twists, p_des, A_des, dt, gain, method, params, start, stop, out):
+def evaluate_range(
+    ch, q0, twists, p_des, A_des, dt, gain, method, params, rows, objective, objective_gain, centre, start, stop, out
+):
     """Metrics ``out[b] (N_METRICS,)`` of parameter sets ``params[b]`` for ``b`` in
     ``[start, stop)``, no traces kept: memory independent of the number of steps."""
-    trace = empty_trace(q0.shape[0])
+    trace = empty_trace(q0.shape[0], rows)
     for b in range(start, stop):
-        simulate(ch, q0, twists, p_des, A_des, dt, gain, method, params[b], False, trace, out[b])
+        simulate(
+            ch,
+            q0,
+            twists,
+            p_des,
+            A_des,
+            dt,
+            gain,
+            method,
+            params[b],
+            rows,
+            objective,
+            objective_gain,
+            centre,
+            False,
+            trace,
+            out[b],
+        )

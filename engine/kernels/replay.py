@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _dop
 
-from engine.kernels.chain import kinematics, kinematics_buffers
+from engine.kernels.chain import SLIDE, kinematics, kinematics_buffers
 from engine.kernels.jit import kernel
 from engine.kernels.linalg import solve6
 from engine.kernels.so3 import quaternion_to_matrix
@@ -40,33 +40,59 @@ OK, STEP_TOO_SMALL, TOO_MANY_STEPS, SINGULAR = 0, 1, 2, 3
 @kernel
 def _joint_motion(ch, kin, qd, v_j, w_j):
     """Velocities of each body's CoM ``v_j (n+1, 3)`` and angular velocities ``w_j (n+1, 3)``
-    from the joint rates alone (base held still): joint j moves bodies j+1..n."""
+    from the joint rates alone (base held still): joint j moves bodies j+1..n, a revolute one
+    turning them about its axis, ``sum_j qd_j k_j x (r_i - p_j)``, a prismatic one sliding them
+    along it, ``sum_j qd_j k_j``. Running sums over the joints (positions relative to the base
+    CoM): ``w_i = sum qd_j k_j``, ``v_i = w_i x (r_i - r_0) - sum qd_j k_j x (p_j - r_0) +
+    sum qd_j k_j`` (the last sum over prismatic joints, the others over revolute ones)."""
     _, com, jpos, jaxis, _, _ = kin
     n = qd.shape[0]
+    w0 = 0.0
+    w1 = 0.0
+    w2 = 0.0
+    c0 = 0.0
+    c1 = 0.0
+    c2 = 0.0
+    l0 = 0.0
+    l1 = 0.0
+    l2 = 0.0
     for r in range(3):
         v_j[0, r] = 0.0
         w_j[0, r] = 0.0
     for i in range(1, n + 1):
-        for r in range(3):
-            v_j[i, r] = 0.0
-            w_j[i, r] = 0.0
-        for j in range(i):
-            k = jaxis[j]
-            d0 = com[i, 0] - jpos[j, 0]
-            d1 = com[i, 1] - jpos[j, 1]
-            d2 = com[i, 2] - jpos[j, 2]
-            v_j[i, 0] += qd[j] * (k[1] * d2 - k[2] * d1)
-            v_j[i, 1] += qd[j] * (k[2] * d0 - k[0] * d2)
-            v_j[i, 2] += qd[j] * (k[0] * d1 - k[1] * d0)
-            for r in range(3):
-                w_j[i, r] += qd[j] * k[r]
+        j = i - 1
+        k0 = jaxis[j, 0]
+        k1 = jaxis[j, 1]
+        k2 = jaxis[j, 2]
+        h = qd[j] * ch.joints[j, SLIDE]  # the sliding rate (0 for a revolute joint)
+        g = qd[j] - h  # the turning rate (0 for a prismatic joint)
+        p0 = jpos[j, 0] - com[0, 0]
+        p1 = jpos[j, 1] - com[0, 1]
+        p2 = jpos[j, 2] - com[0, 2]
+        w0 += g * k0
+        w1 += g * k1
+        w2 += g * k2
+        c0 += g * (k1 * p2 - k2 * p1)
+        c1 += g * (k2 * p0 - k0 * p2)
+        c2 += g * (k0 * p1 - k1 * p0)
+        l0 += h * k0
+        l1 += h * k1
+        l2 += h * k2
+        d0 = com[i, 0] - com[0, 0]
+        d1 = com[i, 1] - com[0, 1]
+        d2 = com[i, 2] - com[0, 2]
+        v_j[i, 0] = (w1 * d2 - w2 * d1) - c0 + l0
+        v_j[i, 1] = (w2 * d0 - w0 * d2) - c1 + l1
+        v_j[i, 2] = (w0 * d1 - w1 * d0) - c2 + l2
+        w_j[i, 0] = w0
+        w_j[i, 1] = w1
+        w_j[i, 2] = w2
 
 
 @kernel
-def _world_inertia(ch, i, A, out):
-    """``out = A I_i A^T``."""
-    inertia = ch.inertias[i]
-    tmp = np.empty((3, 3))
+def _world_inertia(inertias, i, A, out, tmp):
+    """``out = A I_i A^T`` (``tmp (3, 3)`` scratch)."""
+    inertia = inertias[i]
     for r in range(3):
         for c in range(3):
             tmp[r, c] = inertia[r, 0] * A[c, 0] + inertia[r, 1] * A[c, 1] + inertia[r, 2] * A[c, 2]
@@ -85,12 +111,13 @@ def base_twist(ch, kin, qd, v_j, w_j, twist):
     H = np.zeros((6, 6))
     rhs = np.zeros(6)
     Iw = np.empty((3, 3))
+    tmp = np.empty((3, 3))
     for i in range(n + 1):
         m = ch.masses[i]
         x = com[i, 0] - com[0, 0]
         y = com[i, 1] - com[0, 1]
         z = com[i, 2] - com[0, 2]
-        _world_inertia(ch, i, att[i], Iw)
+        _world_inertia(ch.inertias, i, att[i], Iw, tmp)
         # linear momentum: m (v_0 + w_0 x rel + v_j) = m v_0 - m [rel]x w_0 + m v_j
         H[0, 0] += m
         H[1, 1] += m
@@ -289,6 +316,7 @@ def evaluate_samples(ch, q, qd, ys, ee_p, ee_A, base_A, lin_res, ang_res, com):
     twist = np.empty(6)
     A0 = np.empty((3, 3))
     Iw = np.empty((3, 3))
+    tmp = np.empty((3, 3))
     for k in range(q.shape[0]):
         quaternion_to_matrix(ys[k, 3:], A0)
         kinematics(ch, q[k], A0, ys[k, :3], False, kin)
@@ -314,7 +342,7 @@ def evaluate_samples(ch, q, qd, ys, ee_p, ee_A, base_A, lin_res, ang_res, com):
             v[2] = twist[2] + (twist[3] * d1 - twist[4] * d0) + v_j[i, 2]
             for r in range(3):
                 w[r] = twist[3 + r] + w_j[i, r]
-            _world_inertia(ch, i, att[i], Iw)
+            _world_inertia(ch.inertias, i, att[i], Iw, tmp)
             r0 = bcom[i, 0]
             r1 = bcom[i, 1]
             r2 = bcom[i, 2]

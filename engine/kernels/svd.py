@@ -1,8 +1,9 @@
-"""Thin SVD of a ``6 x n`` Jacobian (n = 1..12) by one-sided Jacobi rotations (Hestenes 1958;
-Demmel and Veselic 1992), warm-started from the previous step.
+"""Thin SVD of a ``p x n`` Jacobian (``p`` = 6 for a pose, 3 for a position; n = 1..12) by
+one-sided Jacobi rotations (Hestenes 1958; Demmel and Veselic 1992), warm-started from the
+previous step.
 
-With ``M = J`` when ``n <= 6`` and ``M = J^T`` otherwise, ``M`` is ``r x c`` with ``c = m =
-min(6, n)`` columns. Plane rotations accumulated in ``X (c, c)`` orthogonalise the columns of
+With ``M = J`` when ``n <= p`` and ``M = J^T`` otherwise, ``M`` is ``r x c`` with ``c = m =
+min(p, n)`` columns. Plane rotations accumulated in ``X (c, c)`` orthogonalise the columns of
 ``W = M X``; then ``s_i = |w_i|`` and ``y_i = w_i / s_i``, so ``M = Y diag(s) X^T``. A pair is
 rotated while ``|w_i . w_j| > TOL |w_i| |w_j|``: the test is relative, so even tiny singular
 values come out with high relative accuracy and orthogonal singular vectors. Along a plan the
@@ -43,12 +44,12 @@ ROUNDS = np.stack([_round_robin(c) for c in range(7)])  # ROUNDS[c]: the schedul
 
 
 @kernel
-def svd_buffers(n):
-    """``(Xt (m, m) warm start, U (6, m), s (m,), V (n, m), Wt (m, max(6, n)), sq (m,))``.
-    ``Xt`` and ``Wt`` hold the columns of ``X`` and ``W`` as rows (contiguous for the
-    rotations); ``Xt`` starts as the identity."""
-    m = min(6, n)
-    return (np.eye(m), np.empty((6, m)), np.empty(m), np.empty((n, m)), np.empty((m, max(6, n))), np.empty(m))
+def svd_buffers(n, p=6):
+    """``(Xt (m, m) warm start, U (p, m), s (m,), V (n, m), Wt (m, max(p, n)), sq (m,))`` for a
+    ``p x n`` Jacobian, ``m = min(p, n)``. ``Xt`` and ``Wt`` hold the columns of ``X`` and ``W``
+    as rows (contiguous for the rotations); ``Xt`` starts as the identity."""
+    m = min(p, n)
+    return (np.eye(m), np.empty((p, m)), np.empty(m), np.empty((n, m)), np.empty((m, max(p, n))), np.empty(m))
 
 
 @kernel
@@ -108,18 +109,19 @@ def _complete(Yt, j, only_before):
 
 @kernel
 def jacobi_svd(J, buf, refresh):
-    """Thin SVD ``J = U diag(s) V^T`` of ``J (6, n)`` into ``buf`` (see :func:`svd_buffers`;
+    """Thin SVD ``J = U diag(s) V^T`` of ``J (p, n)`` into ``buf`` (see :func:`svd_buffers`;
     ``Xt`` is the warm start and is updated; ``refresh`` re-orthonormalises it first, which a
     caller does every few steps). ``s`` descending. Returns ``(finite, sweeps)``."""
     Xt, U, s, V, Wfull, sq = buf
+    p = J.shape[0]
     n = J.shape[1]
-    tall = n <= 6
+    tall = n <= p
     c = Xt.shape[0]
-    r = 6 if tall else n
+    r = p if tall else n
     Wt = Wfull[:, :r]
     amax = 0.0
     finite = True
-    for i in range(6):
+    for i in range(p):
         for j in range(n):
             v = abs(J[i, j])
             if not np.isfinite(v):
@@ -262,11 +264,11 @@ def jacobi_svd(J, buf, refresh):
 
 @kernel
 def svd_many(J, U, s, V):
-    """Cold-started :func:`jacobi_svd` of each ``J[b] (6, n)``; ``U (B, 6, m)``, ``s (B, m)``,
+    """Cold-started :func:`jacobi_svd` of each ``J[b] (p, n)``; ``U (B, p, m)``, ``s (B, m)``,
     ``V (B, n, m)``."""
     n = J.shape[2]
     for b in range(J.shape[0]):
-        buf = svd_buffers(n)
+        buf = svd_buffers(n, J.shape[1])
         jacobi_svd(J[b], buf, False)
         U[b] = buf[1]
         s[b] = buf[2]

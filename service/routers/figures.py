@@ -11,6 +11,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
+from pydantic import ValidationError
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -18,6 +19,7 @@ from service import figures
 from service.deps import JobId, PlanId, SessionRoute
 from service.errors import ApiError, ApiValidationError, NotFoundError, responses
 from service.models import Plan, Robot, TuningJob
+from service.schemas import RobotParams
 from service.storage import unpack_trajectory
 
 router = APIRouter(tags=["figures"], route_class=SessionRoute)
@@ -76,7 +78,12 @@ def robot_parameters(session: Session, p: Plan) -> dict[str, Any] | None:
         robot = session.get(Robot, p.robot_id)
         return dict(robot.parameters) if robot is not None else None
     inline = (p.request or {}).get("robot")
-    return dict(inline) if isinstance(inline, dict) else None
+    if not isinstance(inline, dict):
+        return None
+    try:  # the stored request keeps the optional fields it left out as nulls: drop them
+        return RobotParams.model_validate(inline).model_dump(mode="json", exclude_none=True)
+    except ValidationError:
+        return None
 
 
 @router.get(

@@ -21,8 +21,9 @@ from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
-from engine import PlanResult, RobotModel, make_inverse, plan, replay
+from engine import PlanResult, RobotModel, make_inverse, make_secondary, plan, replay
 from engine.errors import ParameterError
+from engine.redundancy import SecondaryObjective
 from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
 from service.db import Database
@@ -193,7 +194,13 @@ def plan_options(body: PlanRequest) -> dict[str, Any]:
         "weights": (body.weights[0], body.weights[1]),
         "aggregation": body.aggregation,
         "attitude_term": body.attitude_term,
+        "secondary": secondary_objective(body),
     }
+
+
+def secondary_objective(body: PlanRequest) -> SecondaryObjective | None:
+    """The engine's null-space objective of a request (its default gain filled in), if any."""
+    return make_secondary(body.secondary.objective, body.secondary.gain) if body.secondary is not None else None
 
 
 def finish_plan(
@@ -212,11 +219,17 @@ def finish_plan(
         raise ApiValidationError(str(exc), [{"loc": loc, "msg": exc.reason}]) from None
     except ValueError as exc:
         raise ApiValidationError(str(exc), [{"loc": ["body"], "msg": str(exc)}]) from None
-    trajectory = trajectory_out(result)
+    trajectory = trajectory_out(result, model.prismatic)
     row = Plan(
         robot_id=robot_id,
         request=clean(body.stored()),
-        method=clean({"name": result.method, "params": result.params}),
+        method=clean(
+            {
+                "name": result.method,
+                "params": result.params,
+                **({"secondary": {"objective": sec.name, "gain": sec.gain}} if (sec := secondary_objective(body)) else {}),
+            }
+        ),
         success=result.success,
         message=result.message,
         metrics=metrics_out(result.metrics),

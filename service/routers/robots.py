@@ -1,33 +1,73 @@
-"""Robots: stored parameter sets and the generalized Jacobian at a state."""
+"""Robots: stored parameter sets (given as such, or derived from a URDF), their URDF, and the
+generalized Jacobian at a state."""
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, Body, Query, Response, status
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from engine import State, generalized_jacobian
+from engine import RobotModel, State, generalized_jacobian
 from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from service import jsonio
-from service.convert import clean, robot_model
+from service.convert import clean, joint_positions, robot_model, urdf_model
 from service.deps import SessionDep, SessionRoute, SettingsDep
 from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, responses
 from service.models import Robot
 from service.quota import check_quota
-from service.schemas import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams
+from service.schemas import JacobianOut, JacobianRequest, JointOut, RobotList, RobotOut, RobotParams, RobotUrdfIn
 
 router = APIRouter(prefix="/v1/robots", tags=["robots"], route_class=SessionRoute)
 
 
+def _degrees(value: float) -> float | None:
+    return math.degrees(value) if math.isfinite(value) else None
+
+
+def _metres(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def joints_out(model: RobotModel) -> tuple[list[JointOut], list[str]]:
+    """The joints with their API units and limits, and notes on the joints without limits."""
+    joints, unlimited = [], []
+    for name, link in zip(model.joint_names, model.links, strict=True):
+        if link.prismatic:
+            joints.append(
+                JointOut(name=name, type="prismatic", unit="m", lower_m=_metres(link.lower), upper_m=_metres(link.upper))
+            )
+        else:
+            joints.append(
+                JointOut(name=name, type="revolute", unit="deg", lower_deg=_degrees(link.lower), upper_deg=_degrees(link.upper))
+            )
+        if not (math.isfinite(link.lower) and math.isfinite(link.upper)):
+            unlimited.append(name)
+    notes = []
+    if unlimited:
+        notes.append(
+            f"joint(s) {', '.join(unlimited)} have no position limit on at least one side (a continuous joint, a revolute "
+            "joint without <limit>, or no lower/upper): treated as unlimited there"
+        )
+    return joints, notes
+
+
 def robot_out(robot: Robot) -> RobotOut:
+    joints, notes = joints_out(robot_model(robot.parameters))
     return RobotOut(
         id=robot.id,
         name=robot.name,
         preset=robot.preset,
         n_joints=len(robot.parameters.get("links", [])),
         parameters=robot.parameters,
+        joints=joints,
+        notes=notes,
         created_at=robot.created_at,
     )
 
@@ -48,16 +88,55 @@ def list_robots(
     return RobotList(items=[robot_out(r) for r in rows], total=total)
 
 
+def _schema_ref(model: type) -> dict[str, str]:
+    return {"$ref": f"#/components/schemas/{model.__name__}"}
+
+
+CREATE_ROBOT_BODY: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "application/json": {
+                "schema": {"oneOf": [_schema_ref(RobotParams), RobotUrdfIn.model_json_schema()]},
+                "examples": {
+                    "urdf": {
+                        "summary": "a URDF robot (the URDF as text in the `urdf` field)",
+                        "value": {"urdf": "<robot name='my-arm'>...</robot>", "end_effector_link": "tool0"},
+                    }
+                },
+            }
+        },
+    }
+}
+
+
+def _validated(model: type[RobotParams] | type[RobotUrdfIn], body: dict[str, Any]) -> Any:
+    """``body`` validated as ``model``, errors under ``body`` like FastAPI's own."""
+    try:
+        return model.model_validate(body)
+    except ValidationError as exc:
+        raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]) from None
+
+
 @router.post(
     "",
     operation_id="create_robot",
     response_model=RobotOut,
     status_code=status.HTTP_201_CREATED,
-    summary="Store a robot parameter set (schema of robot-table1.yaml, SI units)",
+    summary="Store a robot: a parameter set (schema of robot-table1.yaml, SI units) or a URDF (JSON field `urdf`)",
+    description="The body is either a parameter set (`RobotParams`) or a URDF document as text in the field `urdf`, "
+    "with `end_effector_link` and an optional tool offset (`RobotUrdfIn`). A URDF robot is stored as the parameter set "
+    "derived from it (shown in the response); a URDF the service cannot use is a 422 whose `element` names the URDF "
+    "element at fault.",
     responses=responses(422),
+    openapi_extra=CREATE_ROBOT_BODY,
 )
-def create_robot(body: RobotParams, session: SessionDep, settings: SettingsDep, response: Response) -> RobotOut:
-    model = robot_model(body.model_dump(exclude_none=True), ("body",))
+def create_robot(session: SessionDep, settings: SettingsDep, response: Response, body: dict[str, Any] = Body(...)) -> RobotOut:
+    if "urdf" in body:
+        model = urdf_model(_validated(RobotUrdfIn, body))
+    else:
+        params = _validated(RobotParams, body)
+        model = robot_model(params.model_dump(exclude_none=True), ("body",))
     parameters = clean(model.to_dict())
     check_quota(session, settings.storage_quota_bytes, len(jsonio.dumps(parameters)))
     robot = Robot(name=model.name, parameters=parameters, preset=False)
@@ -70,6 +149,21 @@ def create_robot(body: RobotParams, session: SessionDep, settings: SettingsDep, 
 @router.get("/{robot_id}", operation_id="get_robot", response_model=RobotOut, summary="Get a robot", responses=responses(404))
 def get_robot(robot_id: str, session: SessionDep) -> RobotOut:
     return robot_out(load_robot(session, robot_id))
+
+
+@router.get(
+    "/{robot_id}/urdf",
+    operation_id="get_robot_urdf",
+    summary="The robot as a URDF document (reads back to the same model here and in Pinocchio)",
+    response_class=Response,
+    responses={
+        200: {"description": "URDF (XML)", "content": {"application/xml": {"schema": {"type": "string"}}}},
+        **responses(404),
+    },
+)
+def get_robot_urdf(robot_id: str, session: SessionDep) -> Response:
+    model = robot_model(load_robot(session, robot_id).parameters)
+    return Response(model.to_urdf(), media_type="application/xml")
 
 
 @router.delete(
@@ -90,6 +184,7 @@ def delete_robot(robot_id: str, session: SessionDep) -> Response:
 
 #: Engine state fields and their names in the request body.
 STATE_FIELDS = {"q": "joint_angles_deg", "base_position": "base_position_m", "base_attitude": "base_attitude_quaternion"}
+JOINT_FIELDS = ("joint_angles_deg", "joint_displacements_m")
 
 
 @router.post(
@@ -106,9 +201,10 @@ def compute_jacobian(robot_id: str, body: JacobianRequest, session: SessionDep) 
     except ValueError as exc:
         loc = ["body", "base_attitude_quaternion"]
         raise ApiValidationError(f"base_attitude_quaternion: {exc}", [{"loc": loc, "msg": str(exc)}]) from None
+    q = joint_positions(model, body.joint_angles_deg, body.joint_displacements_m, JOINT_FIELDS, ("body",))
     try:
         state = State(
-            np.radians(body.joint_angles_deg),
+            q,
             np.asarray(body.base_position_m if body.base_position_m else np.zeros(3), dtype=float),
             attitude,
         )

@@ -1,6 +1,6 @@
 """Task presets: the paper's detection line and variants, and two inspection paths on the
 Table-1 robot (a raster scan of a patch in front of it and a waypoint inspection), each with the
-method and parameters it is meant to be planned with.
+method and parameters it is meant to be planned with, and lines for the URDF example robots.
 
 The inspection presets' adaptive-damping parameters were tuned with the paper's GA
 (:func:`engine.tuning.tune`: population 16, 10 generations, seed 1, B with w = (0.5, 0.5) and
@@ -96,6 +96,38 @@ PRESETS: dict[str, TaskPreset] = {
         robot_id="table1",
         task=TaskIn(q0_deg=list(PAPER_Q0_DEG), path=WAYPOINT_INSPECTION),
         method=MethodIn(name="adaptive", params={"lambda_max": 0.02753, "epsilon": 0.1736}),
+    ),
+    "arm7-line": TaskPreset(
+        name="arm7-line",
+        description="The 7-joint arm on its spacecraft (URDF example): a 0.37 m line with a 20 deg turn in 20 s, "
+        "6 deg/s limit; plan it with and without the secondary objective min_base_rotation",
+        robot_id="arm7",
+        task=TaskIn(
+            q0_deg=[0.0, 40.0, 0.0, 80.0, 0.0, 50.0, 0.0],
+            target_position_m=[0.8878, 0.3099, -0.5009],
+            target_attitude_quaternion=[0.482759, -0.411213, -0.51896, 0.573173],
+            duration_s=20.0,
+            ramp_time_s=2.0,
+            dt_s=0.25,
+            joint_speed_limit_deg_s=6.0,
+        ),
+    ),
+    "arm3-position": TaskPreset(
+        name="arm3-position",
+        description="The 3-joint arm (yaw, pitch, telescopic boom; URDF example) moves its tool 0.33 m in 20 s, "
+        "tracking the position only; 6 deg/s and 0.05 m/s limits",
+        robot_id="arm3",
+        task=TaskIn(
+            q0_deg=[0.0, 20.0, None],
+            q0_m=[None, None, 0.2],
+            tracks="position",
+            target_position_m=[1.5156, 0.3, 1.2288],
+            duration_s=20.0,
+            ramp_time_s=2.0,
+            dt_s=0.25,
+            joint_speed_limit_deg_s=6.0,
+            joint_speed_limit_m_s=0.05,
+        ),
     ),
 }
 

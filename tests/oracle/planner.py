@@ -3,9 +3,11 @@ parameter sets, with the base attitude step of the compiled planner written in n
 
 At each sample ``t_k`` (k = 0..N): kinematics and GJM at the current state, commanded twist
 (the path's mean twist over the step, plus ``feedback_gain * pose_error`` if asked), robust
-inverse -> joint rates ``qd_k``; then ``q_{k+1} = q_k + qd_k dt``, the base attitude
-``A_0 <- exp([w_0 dt]x) A_0`` with ``w_0`` from angular-momentum conservation, and the base
-position from the fixed system centre of mass (linear momentum stays exactly zero).
+inverse of the tracked rows (all six for a pose task, the linear three for a position task) ->
+joint rates ``qd_k``, plus a secondary objective's null-space motion written with numpy's
+matrices; then ``q_{k+1} = q_k + qd_k dt``, the base attitude ``A_0 <- exp([w_0 dt]x) A_0`` with
+``w_0`` from angular-momentum conservation, and the base position from the fixed system centre
+of mass (linear momentum stays exactly zero). Revolute joints only.
 """
 
 from __future__ import annotations
@@ -19,9 +21,11 @@ import numpy as np
 
 from engine.errors import ParameterError
 from engine.inverses import inverse_params
+from engine.kernels.redundancy import NULL_SPACE_DAMPING
 from engine.model import RobotModel
 from engine.planner import ATTITUDE_TOLERANCE_RAD, POSITION_TOLERANCE_M, PlanResult, _verdict
-from engine.trajectory import CartesianTask
+from engine.redundancy import joint_centres
+from engine.trajectory import TRACKS, CartesianTask
 from oracle.inverses import SVD, thin_svd
 from oracle.jacobian import gjm_batch
 from oracle.kinematics import kinematics_about_com, kinematics_batch, system_com
@@ -61,14 +65,17 @@ def _simulate(
     feedback_gain: float,
     integrator: str = "magnus",
     substep_angle: float = SUBSTEP_ANGLE,
+    secondary: Any = None,
 ) -> _Trace:
     n = model.n_joints
+    rows = TRACKS[task.tracks]
+    centre = joint_centres(model, task.q0)
     if task.q0.shape != (n,):
         raise ParameterError("q0", f"task has {task.q0.shape[0]} joint angles, robot has {n} joints")
     if not math.isfinite(feedback_gain) or feedback_gain < 0.0:
         raise ParameterError("feedback_gain", "must be finite and >= 0")
     N = task.n_steps
-    m = min(6, n)
+    m = min(rows, n)
     dt = task.dt
     t = task.times()
     twists = task.step_twists()
@@ -88,12 +95,13 @@ def _simulate(
     out_s = np.empty((batch, N + 1, m))
     out_det = np.full((batch, N + 1), np.nan)
     out_damp = np.empty((batch, N + 1, m))
-    square = n == 6
+    square = n == rows
     with np.errstate(all="ignore"):  # a diverging plan yields inf/nan, reported by the metrics
         for k in range(N + 1):
             if k > 0:
                 kin = kinematics_about_com(model, q, A0, com)
             J_g, base_map = gjm_batch(model, kin)
+            J_g = np.ascontiguousarray(J_g[:, :rows])
             svd = thin_svd(J_g) if np.all(np.isfinite(J_g)) else _nan_svd(J_g)
             xdot = np.broadcast_to(twists[k], (batch, 6))
             if feedback_gain > 0.0:
@@ -101,7 +109,10 @@ def _simulate(
                 error[:, :3] = p_des[k] - kin.ee_position
                 error[:, 3:] = log_so3(A_des[k] @ np.swapaxes(kin.ee_attitude, -1, -2))
                 xdot = xdot + feedback_gain * error
-            step = inverse.solve(J_g, xdot, svd)
+            step = inverse.solve(J_g, xdot[:, :rows], svd)
+            if secondary is not None and n > rows:
+                for b in range(batch):
+                    step.qd[b] = _null_space(secondary, svd.Vt[b].T, base_map[b, 3:], q[b], centre, step.qd[b])
             out_q[:, k] = q
             out_qd[:, k] = step.qd
             out_base_p[:, k] = kin.body_com[:, 0]
@@ -120,6 +131,20 @@ def _simulate(
                     A0 = _magnus_step(model, q, step.qd, A0, w0, com, dt, substep_angle)
                 q = q + step.qd * dt
     return _Trace(t, out_q, out_qd, out_base_p, out_base_A, out_p, out_A, out_s, out_det, out_damp, p_des, A_des)
+
+
+def _null_space(
+    secondary: Any, V: FloatArray, Omega: FloatArray, q: FloatArray, centre: FloatArray, qd: FloatArray
+) -> FloatArray:
+    """The secondary objective (:mod:`engine.redundancy`) with numpy's matrices: the projector
+    ``N = I - V V^T`` and, for ``min_base_rotation``, the damped least-squares choice of the
+    null-space motion that cancels the carrier's angular velocity ``Omega qd``."""
+    N = np.eye(qd.shape[0]) - V @ V.T
+    if secondary.name == "joint_centering":
+        return qd + N @ (-secondary.gain * (q - centre))
+    P = Omega @ N
+    y = np.linalg.solve(P @ P.T + NULL_SPACE_DAMPING**2 * np.eye(3), Omega @ qd)
+    return qd - secondary.gain * P.T @ y
 
 
 def _body_rate(model: RobotModel, q: FloatArray, qd: FloatArray, com: FloatArray) -> FloatArray:
@@ -214,12 +239,13 @@ def plan(
     attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
     integrator: str = "magnus",
     substep_angle: float = SUBSTEP_ANGLE,
+    secondary: Any = None,
 ) -> PlanResult:
     """Plan ``task`` with ``inverse``. ``success`` is false (with a message) if the plan
     diverged, misses the target pose by more than the tolerances, or breaks the joint
     speed limit; the arrays and metrics are returned in every case."""
     objective = Objective(weights, aggregation, attitude_term)
-    trace = _simulate(model, task, inverse, 1, feedback_gain, integrator, substep_angle)
+    trace = _simulate(model, task, inverse, 1, feedback_gain, integrator, substep_angle, secondary)
     errors = _errors(trace)
     metrics = _batch_metrics(task, trace, errors, objective).item(0)
     success, message = _verdict(metrics, position_tolerance, attitude_tolerance)

@@ -94,7 +94,14 @@ def test_task_presets(client: httpx.Client) -> None:
     listing = client.get("/v1/task-presets").json()
     assert "paper-line" in [p["name"] for p in listing["items"]]
     preset = client.get("/v1/task-presets/paper-line").json()
-    assert preset["task"] == {**PAPER_TASK, "path": {"type": "line"}}
+    # The paper's task, with the defaults of the fields other robots need shown.
+    assert preset["task"] == {
+        **PAPER_TASK,
+        "path": {"type": "line"},
+        "q0_m": None,
+        "tracks": "pose",
+        "joint_speed_limit_m_s": None,
+    }
     _problem(client.get("/v1/task-presets/nope"), 404)
 
 

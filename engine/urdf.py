@@ -1,0 +1,519 @@
+"""URDF import and export: a URDF serial arm on a floating base <-> the model's parameter set.
+
+Reading (:func:`urdf_to_dict`, behind :meth:`engine.model.RobotModel.from_urdf`):
+
+1. The text is parsed by ``defusedxml`` first (at most :data:`MAX_URDF_BYTES`, no DTD, so no
+   entity expansion and no external entities; at most :data:`MAX_DEPTH` levels). Every element
+   the model needs (robot, links with their ``inertial``, joints with ``parent``, ``child``,
+   ``origin``, ``axis``, ``limit``) is checked there, so each refusal names its element. Geometry,
+   materials, transmissions and the like are not used and are left out.
+2. The checked elements are read by `yourdfpy <https://github.com/clemense/yourdfpy>`_ (origins
+   as 4x4 transforms, URDF's fixed-axis roll-pitch-yaw), whose object model also writes the
+   export.
+3. The root link is the floating base. Links joined by ``fixed`` joints form one rigid body
+   (mass, centre of mass and inertia combined exactly, each ``inertial`` origin's rotation
+   applied; massless links are frames). ``revolute`` and ``continuous`` joints (rad) and
+   ``prismatic`` joints (m) move the chain from the root to ``end_effector_link`` (default: the
+   only leaf link after the last moving joint). ``floating``, ``planar`` and ``mimic`` joints,
+   and moving joints off that chain, are refused.
+4. The bodies are expressed in the model's frames: parallel to the base at q = 0 (a URDF link
+   frame turned by ``U_i`` at q = 0 gives ``s_i = U_i axis_i``, ``a_i = U_i c_i``,
+   ``I_i = U_i I U_i^T``), see :mod:`engine.model`.
+
+Position limits: a ``revolute`` or ``prismatic`` joint keeps ``lower``/``upper`` of its
+``<limit>``; a revolute joint without ``<limit>`` (common in the wild), a ``continuous`` joint,
+or a missing ``lower``/``upper`` attribute is unlimited on that side (URDF's default of 0 would
+lock the joint). ``effort`` and ``velocity`` are not used: joint speed limits belong to the task.
+
+Writing (:func:`dict_to_urdf`): one URDF link per body with its frame at the joint, parallel to
+the base at q = 0 (so every joint origin is a pure translation), the CoM as the ``inertial``
+origin, and the end effector as a massless link on a fixed joint. Unlimited revolute joints are
+``continuous``; ``effort`` and ``velocity`` are written as 0 (unknown).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import xml.etree.ElementTree as ET
+from collections import deque
+from typing import Any
+
+import numpy as np
+from defusedxml import DefusedXmlException
+from defusedxml import ElementTree as SafeET
+
+from engine.errors import ParameterError
+from engine.spatial import FloatArray, is_rotation
+
+MAX_URDF_BYTES = 1 << 20
+MAX_DEPTH = 32
+MOVING_TYPES = ("revolute", "continuous", "prismatic")
+REFUSED_TYPES = ("floating", "planar")
+INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+
+
+class UrdfError(ParameterError):
+    """A URDF the engine cannot use; ``element`` names it (``<joint name="elbow">``)."""
+
+    def __init__(self, element: str, reason: str) -> None:
+        super().__init__(element, reason)
+        self.element = element
+
+
+def _link(name: str) -> str:
+    return f'<link name="{name}">'
+
+
+def _joint(name: str) -> str:
+    return f'<joint name="{name}">'
+
+
+# --- the defusedxml pass: size, well-formedness, and every element the model uses ----------
+
+
+def _parse_safely(text: str | bytes) -> ET.Element:
+    data = text.encode("utf-8") if isinstance(text, str) else bytes(text)
+    if len(data) > MAX_URDF_BYTES:
+        raise UrdfError("<robot>", f"the URDF has {len(data)} bytes, more than the {MAX_URDF_BYTES} accepted")
+    try:
+        root = SafeET.fromstring(data, forbid_dtd=True, forbid_entities=True, forbid_external=True)
+    except DefusedXmlException as exc:
+        raise UrdfError("<robot>", f"refused: {type(exc).__name__} (no DTD, entities or external references)") from None
+    except ET.ParseError as exc:
+        raise UrdfError("<robot>", f"not well-formed XML: {exc}") from None
+    depth = [(root, 1)]
+    while depth:
+        element, level = depth.pop()
+        if level > MAX_DEPTH:
+            raise UrdfError(f"<{element.tag}>", f"elements nested more than {MAX_DEPTH} deep")
+        depth.extend((child, level + 1) for child in element)
+    if root.tag != "robot":
+        raise UrdfError(f"<{root.tag}>", "the root element must be <robot>")
+    return root
+
+
+def _numbers(element: ET.Element | None, attr: str, count: int, where: str, *, required: bool = False) -> list[float] | None:
+    """The attribute as ``count`` finite numbers (None if absent and not required)."""
+    if element is None:
+        return None
+    raw = element.get(attr)
+    label = f"<{element.tag} {attr}>"
+    if raw is None:
+        if required:
+            raise UrdfError(where, f"<{element.tag}> needs the attribute {attr}")
+        return None
+    parts = raw.split()
+    hint = " (xacro expressions must be expanded first)" if "${" in raw or "$(" in raw else ""
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise UrdfError(where, f"{label}: {raw!r} is not {count} number(s){hint}") from None
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise UrdfError(where, f"{label}: {raw!r} is not {count} finite number(s){hint}")
+    return values
+
+
+def _check_origin(element: ET.Element | None, where: str) -> None:
+    origin = element.find("origin") if element is not None else None
+    _numbers(origin, "xyz", 3, where)
+    _numbers(origin, "rpy", 3, where)
+
+
+def _name(element: ET.Element, kind: str, seen: set[str]) -> str:
+    name = element.get("name")
+    if not name:
+        raise UrdfError(f"<{kind}>", f"a <{kind}> needs a name attribute")
+    if name in seen:
+        raise UrdfError(f'<{kind} name="{name}">', f"two <{kind}> elements are named {name!r}")
+    seen.add(name)
+    return name
+
+
+def _checked_copy(root: ET.Element) -> ET.Element:
+    """Check what the model uses and return a copy with only those elements (geometry,
+    materials, transmissions, dynamics and the like are not read)."""
+    robot_name = root.get("name")
+    if not robot_name:
+        raise UrdfError("<robot>", "the <robot> needs a name attribute")
+    out = ET.Element("robot", {"name": robot_name})
+    link_names: set[str] = set()
+    for link in root.findall("link"):
+        name = _name(link, "link", link_names)
+        where = _link(name)
+        kept = ET.SubElement(out, "link", {"name": name})
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue  # a frame: no mass
+        _check_origin(inertial, where)
+        mass = inertial.find("mass")
+        if mass is None:
+            raise UrdfError(where, "<inertial> needs a <mass value=...>")
+        (value,) = _numbers(mass, "value", 1, where, required=True) or [0.0]
+        if value < 0.0:
+            raise UrdfError(where, f"negative mass {value:g} kg")
+        inertia = inertial.find("inertia")
+        if inertia is None:
+            raise UrdfError(where, "<inertial> needs an <inertia> with ixx, ixy, ixz, iyy, iyz, izz")
+        for key in INERTIA_KEYS:
+            _numbers(inertia, key, 1, where, required=True)
+        kept.append(_strip(inertial, ("origin", "mass", "inertia")))
+    joint_names: set[str] = set()
+    for joint in root.findall("joint"):
+        name = _name(joint, "joint", joint_names)
+        where = _joint(name)
+        kind = joint.get("type")
+        if kind in REFUSED_TYPES:
+            raise UrdfError(where, f"{kind} joints are not supported (the root link is the only free body)")
+        if kind not in MOVING_TYPES and kind != "fixed":
+            raise UrdfError(where, f"unknown joint type {kind!r}; supported: fixed, {', '.join(MOVING_TYPES)}")
+        if joint.find("mimic") is not None:
+            raise UrdfError(where, "mimic joints are not supported (every joint of the chain is driven on its own)")
+        for tag in ("parent", "child"):
+            node = joint.find(tag)
+            if node is None or not node.get("link"):
+                raise UrdfError(where, f"the joint needs a <{tag} link=...>")
+        _check_origin(joint, where)
+        axis = _numbers(joint.find("axis"), "xyz", 3, where)
+        if kind in MOVING_TYPES and axis is not None and math.hypot(*axis) < 1e-12:
+            raise UrdfError(where, "the joint axis is zero")
+        limit = joint.find("limit")
+        for key in ("lower", "upper", "effort", "velocity"):
+            _numbers(limit, key, 1, where)
+        out.append(_strip(joint, ("parent", "child", "origin", "axis", "limit")))
+    return out
+
+
+def _strip(element: ET.Element, keep: tuple[str, ...]) -> ET.Element:
+    """``element`` with its attributes and only the children named in ``keep`` (attributes only)."""
+    kept = ET.Element(element.tag, dict(element.attrib))
+    for child in element:
+        if child.tag in keep:
+            kept.append(ET.Element(child.tag, dict(child.attrib)))
+    return kept
+
+
+def _read(text: str | bytes) -> Any:
+    """The checked URDF as a ``yourdfpy.Robot`` (no meshes, no scene graph)."""
+    import yourdfpy  # imported on first use: it brings trimesh along (about a second)
+
+    checked = ET.tostring(_checked_copy(_parse_safely(text)), encoding="utf-8")
+    try:
+        urdf = yourdfpy.URDF.load(
+            io.BytesIO(checked), build_scene_graph=False, load_meshes=False, build_collision_scene_graph=False
+        )
+    except Exception as exc:  # the checks above cover what it reads; anything else is still a URDF error
+        raise UrdfError("<robot>", f"the URDF could not be read: {type(exc).__name__}: {exc}") from None
+    return urdf.robot
+
+
+# --- the tree: bodies (links joined by fixed joints) and the moving chain ------------------
+
+
+def _transform(origin: np.ndarray | None) -> FloatArray:
+    return np.eye(4) if origin is None else np.asarray(origin, dtype=float)
+
+
+def _body_inertia(links: list[tuple[Any, FloatArray]], where: str, moving: bool) -> tuple[float, FloatArray, FloatArray]:
+    """``(mass, com (3,), inertia about the com (3, 3))`` of the rigid links ``(link,
+    T_frame_link)`` in the frame of the body (the first link)."""
+    parts = []
+    for link, T in links:
+        inertial = link.inertial
+        if inertial is None or inertial.mass is None:
+            continue
+        T_c = T @ _transform(inertial.origin)
+        inertia = np.asarray(inertial.inertia, dtype=float)
+        _check_physical(inertia, _link(link.name))
+        if inertial.mass == 0.0 and not np.any(inertia):
+            continue  # a frame
+        R = T_c[:3, :3]
+        parts.append((float(inertial.mass), T_c[:3, 3], R @ inertia @ R.T))
+    mass = sum(m for m, _, _ in parts)
+    if mass <= 0.0:
+        merged = [link.name for link, _ in links[1:]]
+        also = f" (with its fixed links {', '.join(merged)})" if merged else ""
+        what = "the floating base" if not moving else "the body it moves"
+        raise UrdfError(where, f"{what} has zero mass{also}: a moving body needs a mass")
+    if len(parts) == 1:  # no arithmetic: a single massive link is kept exactly
+        _, only_com, only_inertia = parts[0]
+        return mass, np.array(only_com), np.array(only_inertia)
+    com: FloatArray = np.sum([m * c for m, c, _ in parts], axis=0) / mass
+    total = np.zeros((3, 3))
+    for m, c, inertia in parts:
+        d = c - com
+        total += inertia + m * (float(d @ d) * np.eye(3) - np.outer(d, d))
+    return mass, com, total
+
+
+def _check_physical(inertia: FloatArray, where: str) -> None:
+    scale = max(float(np.max(np.abs(inertia))), 1e-300)
+    principal = np.linalg.eigvalsh(inertia)
+    if principal[0] < -1e-9 * scale:
+        raise UrdfError(where, f"non-physical inertia: principal moments {principal.tolist()} must be >= 0")
+    p1, p2, p3 = principal
+    if p3 > p1 + p2 + 1e-9 * scale:
+        raise UrdfError(where, f"non-physical inertia: principal moments {principal.tolist()} violate the triangle inequality")
+
+
+def _limits(joint: Any) -> dict[str, float | None] | None:
+    if joint.type == "continuous" or joint.limit is None:
+        return None
+    lower, upper = joint.limit.lower, joint.limit.upper
+    if lower is not None and upper is not None and not lower < upper:
+        raise UrdfError(_joint(joint.name), f"<limit>: lower ({lower:g}) must be smaller than upper ({upper:g})")
+    if lower is None and upper is None:
+        return None
+    return {"lower": lower, "upper": upper}
+
+
+def urdf_to_dict(
+    text: str | bytes,
+    *,
+    end_effector_link: str | None = None,
+    tool_offset: tuple[Any, Any] | None = None,
+    name: str | None = None,
+) -> dict[str, Any]:
+    """The model parameters (the schema of :meth:`engine.model.RobotModel.from_dict`) of a URDF
+    serial arm on a floating base; see the module docstring. ``tool_offset = (position (3,) m,
+    rotation (3, 3))`` is the end-effector frame in ``end_effector_link``'s frame."""
+    robot = _read(text)
+    links = {link.name: link for link in robot.links}
+    parent_joint: dict[str, Any] = {}
+    children: dict[str, list[Any]] = {}
+    for joint in robot.joints:
+        for role, link_name in (("parent", joint.parent), ("child", joint.child)):
+            if link_name not in links:
+                raise UrdfError(_joint(joint.name), f"its {role} link {link_name!r} does not exist")
+        if joint.child in parent_joint:
+            raise UrdfError(_link(joint.child), f"is the child of two joints ({parent_joint[joint.child].name}, {joint.name})")
+        parent_joint[joint.child] = joint
+        children.setdefault(joint.parent, []).append(joint)
+    roots = [link for link in links if link not in parent_joint]
+    if len(roots) != 1:
+        what = "no root link (the joints form a loop)" if not roots else f"{len(roots)} root links ({', '.join(roots)})"
+        raise UrdfError("<robot>", f"the URDF must be one tree with one root link (the floating base); it has {what}")
+    root = roots[0]
+
+    # Bodies: each link's body (the link at its top) and its pose in the body frame at q = 0.
+    body_of: dict[str, str] = {root: root}
+    pose: dict[str, FloatArray] = {root: np.eye(4)}
+    order = deque([root])
+    reached = [root]
+    while order:
+        parent = order.popleft()
+        for joint in children.get(parent, []):
+            child = joint.child
+            if joint.type == "fixed":
+                body_of[child] = body_of[parent]
+                pose[child] = pose[parent] @ _transform(joint.origin)
+            else:
+                body_of[child] = child
+                pose[child] = np.eye(4)
+            order.append(child)
+            reached.append(child)
+    if len(reached) != len(links):
+        missing = sorted(set(links) - set(reached))
+        raise UrdfError(_link(missing[0]), "is not connected to the root link (the joints form a loop)")
+
+    moving = [j for j in robot.joints if j.type in MOVING_TYPES]
+    if end_effector_link is not None:
+        if end_effector_link not in links:
+            raise UrdfError(_link(end_effector_link), "end_effector_link: the URDF has no such link")
+        chain: list[Any] = []
+        body = body_of[end_effector_link]
+        while body != root:
+            joint = parent_joint[body]
+            chain.append(joint)
+            body = body_of[joint.parent]
+        chain.reverse()
+        on_chain = {j.name for j in chain}
+        for joint in moving:
+            if joint.name not in on_chain:
+                raise UrdfError(
+                    _joint(joint.name),
+                    f"is a moving joint off the chain from {root!r} to end_effector_link {end_effector_link!r}: "
+                    "a second moving branch (or joints beyond the end effector) is not supported",
+                )
+        ee_name = end_effector_link
+    else:
+        chain = []
+        body = root
+        while True:
+            below = [j for j in moving if body_of[j.parent] == body]
+            if len(below) > 1:
+                raise UrdfError(
+                    _joint(below[1].name),
+                    f"a second moving branch from the body of link {body!r} (besides joint {below[0].name!r}): "
+                    "only serial chains are supported",
+                )
+            if not below:
+                break
+            chain.append(below[0])
+            body = below[0].child
+        leaves = [link for link in links if body_of[link] == body and not children.get(link)]
+        if len(leaves) != 1:
+            raise UrdfError(
+                _link(body),
+                f"the last body has {len(leaves)} leaf links ({', '.join(leaves)}): name one as end_effector_link",
+            )
+        ee_name = leaves[0]
+    if not chain:
+        raise UrdfError("<robot>", "no revolute, continuous or prismatic joint between the root link and the end effector")
+
+    # Bodies' inertial properties in their frames, then the model's frames (parallel at q = 0).
+    def members(top: str) -> list[tuple[Any, FloatArray]]:
+        first = [(links[top], pose[top])]
+        return first + [(links[k], pose[k]) for k in reached if body_of[k] == top and k != top]
+
+    base_mass, base_com, base_inertia = _body_inertia(members(root), _link(root), moving=False)
+    U = np.eye(3)
+    prev_com = base_com
+    params_links: list[dict[str, Any]] = []
+    b_prev: FloatArray | None = None
+    for joint in chain:
+        X = pose[joint.parent] @ _transform(joint.origin)  # joint frame in the parent body's frame, q = 0
+        b_vec = U @ (X[:3, 3] - prev_com)
+        if params_links:
+            params_links[-1]["b"] = b_vec.tolist()
+        else:
+            b_prev = b_vec
+        U = U @ X[:3, :3]
+        axis = np.asarray(joint.axis if joint.axis is not None else (1.0, 0.0, 0.0), dtype=float)
+        mass, com, inertia = _body_inertia(members(joint.child), _link(joint.child), moving=True)
+        entry: dict[str, Any] = {
+            "name": joint.child,
+            "joint_name": joint.name,
+            "joint_type": "prismatic" if joint.type == "prismatic" else "revolute",
+            "mass": mass,
+            "joint_axis": (U @ (axis / np.linalg.norm(axis))).tolist(),
+            "a": (U @ com).tolist(),
+            "b": [0.0, 0.0, 0.0],
+            "inertia": (U @ inertia @ U.T).tolist(),
+        }
+        limits = _limits(joint)
+        if limits is not None:
+            entry["limits"] = limits
+        params_links.append(entry)
+        prev_com = com
+    T_ee = pose[ee_name]
+    label = ee_name
+    if tool_offset is not None:
+        position, rotation = tool_offset
+        p = np.asarray(position, dtype=float)
+        R = np.asarray(rotation, dtype=float)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise UrdfError("tool_offset", "the tool position must be 3 finite numbers (m)")
+        if not is_rotation(R):
+            raise UrdfError("tool_offset", "the tool rotation must be a rotation matrix")
+        tool = np.eye(4)
+        tool[:3, :3] = R
+        tool[:3, 3] = p
+        T_ee = T_ee @ tool
+        label = f"{ee_name}_tool"
+    params_links[-1]["b"] = (U @ (T_ee[:3, 3] - prev_com)).tolist()
+    assert b_prev is not None
+    return {
+        "name": name or robot.name,
+        "base": {"name": root, "mass": base_mass, "inertia": base_inertia.tolist(), "b": b_prev.tolist()},
+        "links": params_links,
+        "end_effector": {"name": label, "C_e": (U @ T_ee[:3, :3]).tolist()},
+    }
+
+
+def urdf_element(params: dict[str, Any], field: str) -> str:
+    """The URDF element behind a field of the parameter set (``links[2].inertia`` -> the link
+    of the third body)."""
+    if field.startswith("links[") and "]" in field:
+        index = int(field[len("links[") : field.index("]")])
+        return _link(params["links"][index]["name"])
+    if field.startswith("base"):
+        return _link(params["base"].get("name", "base"))
+    if field.startswith("end_effector"):
+        return _link(params["end_effector"].get("name", "end_effector"))
+    return "<robot>"
+
+
+# --- writing ---------------------------------------------------------------------------
+
+
+def _unique(name: str, taken: set[str]) -> str:
+    candidate, k = name, 2
+    while candidate in taken:
+        candidate, k = f"{name}_{k}", k + 1
+    taken.add(candidate)
+    return candidate
+
+
+def _origin(position: Any, rotation: Any = None) -> FloatArray:
+    T = np.eye(4)
+    T[:3, 3] = np.asarray(position, dtype=float)
+    if rotation is not None:
+        T[:3, :3] = np.asarray(rotation, dtype=float)
+    return T
+
+
+def dict_to_urdf(params: dict[str, Any]) -> str:
+    """URDF text of a parameter set (:meth:`engine.model.RobotModel.to_dict`); see the module
+    docstring. Pinocchio and :func:`urdf_to_dict` read it back to the same model."""
+    import yourdfpy
+    from lxml import etree
+
+    link_names: set[str] = set()
+    joint_names: set[str] = set()
+    base = params["base"]
+    parent = _unique(base.get("name", "base"), link_names)
+    robot = yourdfpy.Robot(name=params["name"])
+    robot.links.append(
+        yourdfpy.Link(
+            name=parent,
+            inertial=yourdfpy.Inertial(
+                origin=np.eye(4), mass=float(base["mass"]), inertia=np.array(base["inertia"], dtype=float)
+            ),
+        )
+    )
+    offset = np.array(base["b"], dtype=float)
+    for i, link in enumerate(params["links"]):
+        child = _unique(link.get("name") or f"link{i + 1}", link_names)
+        limits = link.get("limits") or {}
+        lower, upper = limits.get("lower"), limits.get("upper")
+        kind = link.get("joint_type", "revolute")
+        if kind == "revolute" and lower is None and upper is None:
+            kind, limit = "continuous", None
+        else:
+            limit = yourdfpy.Limit(effort=0.0, velocity=0.0, lower=lower, upper=upper)
+        robot.links.append(
+            yourdfpy.Link(
+                name=child,
+                inertial=yourdfpy.Inertial(
+                    origin=_origin(link["a"]), mass=float(link["mass"]), inertia=np.array(link["inertia"], dtype=float)
+                ),
+            )
+        )
+        robot.joints.append(
+            yourdfpy.Joint(
+                name=_unique(link.get("joint_name") or f"joint{i + 1}", joint_names),
+                type=kind,
+                parent=parent,
+                child=child,
+                origin=_origin(offset),
+                axis=np.array(link["joint_axis"], dtype=float),
+                limit=limit,
+            )
+        )
+        offset = np.array(link["a"], dtype=float) + np.array(link["b"], dtype=float)
+        parent = child
+    end_effector = params.get("end_effector") or {}
+    ee = _unique(end_effector.get("name", "end_effector"), link_names)
+    robot.links.append(yourdfpy.Link(name=ee))
+    robot.joints.append(
+        yourdfpy.Joint(
+            name=_unique(f"{ee}_joint", joint_names),
+            type="fixed",
+            parent=parent,
+            child=ee,
+            origin=_origin(offset, end_effector.get("C_e", np.eye(3))),
+        )
+    )
+    tree = yourdfpy.URDF(robot=robot, build_scene_graph=False, load_meshes=False).write_xml()
+    return etree.tostring(tree, pretty_print=True, xml_declaration=True, encoding="UTF-8").decode("utf-8")

@@ -1,0 +1,251 @@
+"""URDF import and export against Pinocchio's own URDF reader (free-flyer root joint): forward
+kinematics and the GJM of the example robots and of random URDFs (fixed joints with and without
+mass, rotated inertial frames, prismatic and continuous joints, revolute joints without limits),
+merged inertias against Pinocchio's fixed-joint merging, round trips, and every refusal."""
+
+import math
+
+import numpy as np
+import pytest
+from robots import random_robot
+from urdf_robots import pinocchio_from_urdf, pinocchio_gjm_and_pose, pinocchio_state, random_urdf
+
+from engine import RobotModel, State, generalized_jacobian, make_inverse, paper_task, plan, table1_robot, urdf_robot
+from engine.kinematics import forward_kinematics
+from engine.model import URDF_PRESETS, urdf_preset_text
+from engine.spatial import exp_so3
+from engine.urdf import MAX_URDF_BYTES, UrdfError
+
+
+def _random_state(rng, model):
+    lower = np.where(np.isfinite(model.lower_limits), model.lower_limits, -math.pi)
+    upper = np.where(np.isfinite(model.upper_limits), model.upper_limits, math.pi)
+    return State(rng.uniform(lower, upper), rng.normal(size=3), exp_so3(rng.normal(size=3)))
+
+
+def _max_gaps(model, text, frame, rng, count):
+    """Largest differences of the GJM, the end-effector position and attitude to Pinocchio's."""
+    pm = pinocchio_from_urdf(text)
+    worst = np.zeros(3)
+    for _ in range(count):
+        state = _random_state(rng, model)
+        J_pin, p_pin, A_pin = pinocchio_gjm_and_pose(pm, frame, pinocchio_state(pm, model, state))
+        ours = generalized_jacobian(model, state)
+        gaps = [np.abs(ours.J_g - J_pin).max(), np.abs(ours.ee_position - p_pin).max(), np.abs(ours.ee_attitude - A_pin).max()]
+        worst = np.maximum(worst, gaps)
+    return worst
+
+
+@pytest.mark.parametrize("preset", sorted(URDF_PRESETS))
+def test_example_robots_match_pinocchio(rng, preset):
+    model = urdf_robot(preset)
+    assert np.all(_max_gaps(model, urdf_preset_text(preset), "tool0", rng, 40) < 1e-9)
+
+
+def test_example_robots():
+    arm7, arm3 = urdf_robot("arm7"), urdf_robot("arm3")
+    assert arm7.n_joints == 7 and arm7.joint_types == ("revolute",) * 7
+    assert arm7.base.name == "spacecraft" and arm7.base.mass == 483.0  # the mounting plate is merged
+    assert arm7.end_effector_name == "tool0" and np.all(np.isfinite(arm7.lower_limits))
+    assert arm3.joint_types == ("revolute", "revolute", "prismatic")
+    assert arm3.joint_names == ("yaw", "pitch", "boom_extension")
+    assert math.isinf(arm3.lower_limits[0]) and math.isinf(arm3.upper_limits[0])  # continuous
+    np.testing.assert_allclose(arm3.lower_limits[1:], [math.radians(-90.0), 0.0])
+    # The default end effector is the only leaf after the last moving joint.
+    assert RobotModel.from_urdf(urdf_preset_text("arm7")).end_effector_name == "tool0"
+
+
+@pytest.mark.parametrize("n", [3, 6, 7, 12])
+def test_random_urdfs_match_pinocchio(rng, n):
+    for _ in range(3):
+        text = random_urdf(rng, n)
+        model = RobotModel.from_urdf(text, end_effector_link="tool0")
+        assert model.n_joints == n
+        assert np.all(_max_gaps(model, text, "tool0", rng, 8) < 1e-9)
+
+
+def test_merged_inertias_match_pinocchio(rng):
+    """Mass, CoM and inertia of every body (fixed links merged) equal Pinocchio's, turned into
+    the model's frames (parallel to the base at q = 0)."""
+    for n in (3, 7):
+        for _ in range(3):
+            text = random_urdf(rng, n)
+            model = RobotModel.from_urdf(text, end_effector_link="tool0")
+            pm = pinocchio_from_urdf(text)
+            data = pm.createData()
+            import pinocchio as pin
+
+            pin.forwardKinematics(pm, data, pin.neutral(pm))
+            root = data.oMi[1].rotation
+            bodies = [(model.base.mass, np.zeros(3), model.base.inertia)] + [
+                (link.mass, link.a, link.inertia) for link in model.links
+            ]
+            for j, (mass, a, inertia) in enumerate(bodies):
+                U = root.T @ data.oMi[j + 1].rotation  # the URDF frame at q = 0 in the base frame
+                theirs = pm.inertias[j + 1]
+                assert mass == pytest.approx(theirs.mass, rel=1e-12)
+                np.testing.assert_allclose(U @ theirs.inertia @ U.T, inertia, atol=1e-10)
+                if j > 0:
+                    np.testing.assert_allclose(U @ theirs.lever, a, atol=1e-12)
+            np.testing.assert_allclose(model.base.b + pm.inertias[1].lever, pm.jointPlacements[2].translation, atol=1e-12)
+
+
+def _assert_same_model(a, b, tol=1e-12):
+    assert a.n_joints == b.n_joints and a.joint_types == b.joint_types
+    np.testing.assert_allclose(a.masses, b.masses, rtol=tol)
+    np.testing.assert_allclose(a.inertias, b.inertias, atol=tol * np.abs(a.inertias).max())
+    np.testing.assert_allclose(a.joint_axes, b.joint_axes, atol=tol)
+    np.testing.assert_allclose(a.a_vectors, b.a_vectors, atol=tol)
+    np.testing.assert_allclose(a.b_vectors, b.b_vectors, atol=tol)
+    np.testing.assert_allclose(a.C_e, b.C_e, atol=tol)
+    np.testing.assert_array_equal(a.lower_limits, b.lower_limits)
+    np.testing.assert_array_equal(a.upper_limits, b.upper_limits)
+
+
+def test_round_trips(rng):
+    models = [table1_robot(), urdf_robot("arm7"), urdf_robot("arm3")]
+    models += [RobotModel.from_urdf(random_urdf(rng, n), end_effector_link="tool0") for n in (3, 8)]
+    limited = random_robot(rng, 7, prismatic=0.5).to_dict()
+    limited["links"][1]["limits"] = {"lower": -1.0, "upper": None}  # one-sided
+    limited["links"][2]["limits"] = {"lower": -0.2, "upper": 0.4}
+    models.append(RobotModel.from_dict(limited))
+    for model in models:
+        again = RobotModel.from_urdf(model.to_urdf())
+        _assert_same_model(model, again)
+        assert again.joint_names == model.joint_names and again.end_effector_name == model.end_effector_name
+        # Pinocchio reads the export to the same robot.
+        assert np.all(_max_gaps(model, model.to_urdf(), model.end_effector_name, rng, 5) < 1e-9)
+
+
+def test_table1_export_gives_the_same_paper_plan(robot, task):
+    again = RobotModel.from_urdf(robot.to_urdf())
+    inverse = make_inverse("adaptive", lambda_max=0.06, epsilon=0.12)
+    ours, theirs = plan(robot, task, inverse), plan(again, paper_task(again), inverse)
+    np.testing.assert_allclose(theirs.q, ours.q, atol=1e-10)
+    np.testing.assert_allclose(theirs.ee_position, ours.ee_position, atol=1e-10)
+    assert theirs.metrics.objective_b == pytest.approx(ours.metrics.objective_b, rel=1e-9)
+
+
+def test_tool_offset_moves_the_end_effector(rng):
+    text = urdf_preset_text("arm7")
+    offset = np.array([0.01, -0.02, 0.15])
+    R = exp_so3(np.array([0.3, -0.2, 0.5]))
+    plain = RobotModel.from_urdf(text, end_effector_link="tool0")
+    tool = RobotModel.from_urdf(text, end_effector_link="tool0", tool_offset=(offset, R))
+    for _ in range(5):
+        state = _random_state(rng, plain)
+        a, b = forward_kinematics(plain, state), forward_kinematics(tool, state)
+        np.testing.assert_allclose(b.ee_position, a.ee_position + a.ee_attitude @ offset, atol=1e-12)
+        np.testing.assert_allclose(b.ee_attitude, a.ee_attitude @ R, atol=1e-12)
+    with pytest.raises(UrdfError, match="tool"):
+        RobotModel.from_urdf(text, end_effector_link="tool0", tool_offset=(offset, 2.0 * R))
+
+
+def test_massless_frames_and_missing_limits_are_accepted():
+    text = """<robot name="r">
+      <link name="world"/>
+      <link name="body"><inertial><mass value="100"/>
+        <inertia ixx="10" ixy="0" ixz="0" iyy="10" iyz="0" izz="10"/></inertial></link>
+      <joint name="world_body" type="fixed"><parent link="world"/><child link="body"/></joint>
+      <link name="arm"><inertial><origin xyz="0.2 0 0"/><mass value="2"/>
+        <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.02"/></inertial></link>
+      <joint name="shoulder" type="revolute"><parent link="body"/><child link="arm"/><axis xyz="0 0 1"/></joint>
+      <link name="flange"/>
+      <joint name="flange_joint" type="fixed"><parent link="arm"/><child link="flange"/><origin xyz="0.4 0 0"/></joint>
+    </robot>"""
+    model = RobotModel.from_urdf(text)
+    assert model.n_joints == 1 and model.base.name == "world" and model.end_effector_name == "flange"
+    assert not model.links[0].limited  # revolute without <limit>: unlimited
+    np.testing.assert_allclose(model.links[0].b, [0.2, 0.0, 0.0])
+
+
+INERTIA = '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/>'
+
+
+def _link(name, inertial=f'<inertial><mass value="1"/>{INERTIA}</inertial>'):
+    return f'<link name="{name}">{inertial}</link>'
+
+
+def _joint(name, kind, parent, child, extra=""):
+    return f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>{extra}</joint>'
+
+
+def _arm(joints: str = "", links: str = "", name: str = 'name="r"') -> str:
+    """A two-joint arm, with extra joints and links."""
+    return f"""<robot {name}>
+      <link name="base"><inertial><mass value="100"/>{INERTIA}</inertial></link>{_link("l1")}{_link("l2")}
+      {_joint("j1", "revolute", "base", "l1", '<axis xyz="0 0 1"/>')}
+      {_joint("j2", "revolute", "l1", "l2", '<origin xyz="0 0 1"/><axis xyz="0 1 0"/>')}
+      {links}{joints}
+    </robot>"""
+
+
+def _third(kind, extra="", link=_link("l3")):
+    """The arm with a third joint ``j3`` from l2 to l3."""
+    return _arm(_joint("j3", kind, "l2", "l3", extra), link)
+
+
+def _inertia(values):
+    attrs = " ".join(f'{k}="{v}"' for k, v in zip(("ixx", "ixy", "ixz", "iyy", "iyz", "izz"), values, strict=True))
+    return _link("l3", f'<inertial><mass value="1"/><inertia {attrs}/></inertial>')
+
+
+J3 = '<joint name="j3">'
+L3 = '<link name="l3">'
+
+
+@pytest.mark.parametrize(
+    ("text", "options", "element", "reason"),
+    [
+        ("<robot name='r'><link name='a'>", {}, "<robot>", "not well-formed"),
+        ('<?xml version="1.0"?><!DOCTYPE r [<!ENTITY a "aaaa">]><robot name="r">&a;</robot>', {}, "<robot>", "DTD"),
+        ('<!DOCTYPE r [<!ENTITY x SYSTEM "file:///etc/passwd">]><robot name="x">&x;</robot>', {}, "<robot>", "DTD"),
+        ("<model name='r'/>", {}, "<model>", "must be <robot>"),
+        (_arm(name=""), {}, "<robot>", "name"),
+        (_third("floating", link="<link name='l3'/>"), {}, J3, "floating"),
+        (_third("planar", link="<link name='l3'/>"), {}, J3, "planar"),
+        (_third("spherical", link="<link name='l3'/>"), {}, J3, "unknown joint type"),
+        (_third("revolute", "<mimic joint='j2'/>"), {}, J3, "mimic"),
+        (_arm(_joint("j3", "fixed", "l2", "nowhere")), {}, J3, "does not exist"),
+        (_arm(), {"end_effector_link": "nowhere"}, '<link name="nowhere">', "no such link"),
+        (_arm(_joint("j3", "revolute", "l1", "l3", "<axis xyz='1 0 0'/>"), _link("l3")), {}, J3, "second moving branch"),
+        (_arm(), {"end_effector_link": "l1"}, '<joint name="j2">', "off the chain"),
+        (_third("prismatic", link="<link name='l3'/>"), {}, L3, "zero mass"),
+        (_third("fixed", link=_inertia((1, 0, 0, -1, 0, 1))), {}, L3, "non-physical inertia"),
+        (_third("fixed", link=_inertia((1, 0, 0, 1, 0, 5))), {}, L3, "triangle inequality"),
+        (_arm(links="<link name='l3'><inertial><mass value='-1'/></inertial></link>"), {}, L3, "negative mass"),
+        (_arm(links="<link name='l3'><inertial><mass value='1'/></inertial></link>"), {}, L3, "<inertia>"),
+        (_third("fixed", "<origin xyz='${a} 0 0'/>"), {}, J3, "xacro"),
+        (_third("revolute", "<axis xyz='0 0 0'/>"), {}, J3, "axis is zero"),
+        (_arm(links="<link name='l1'/>"), {}, '<link name="l1">', "two <link>"),
+        (_arm(_joint("j3", "fixed", "l2", "l1")), {}, '<link name="l1">', "child of two joints"),
+        (_third("revolute", "<limit lower='1' upper='-1'/>"), {}, J3, "lower"),
+    ],
+)
+def test_refusals_name_the_element(text, options, element, reason):
+    with pytest.raises(UrdfError) as info:
+        RobotModel.from_urdf(text, **options)
+    assert info.value.element == element, info.value
+    assert reason in info.value.reason, info.value
+
+
+def test_size_and_depth_limits():
+    with pytest.raises(UrdfError, match="bytes"):
+        RobotModel.from_urdf("<robot name='r'>" + " " * MAX_URDF_BYTES + "</robot>")
+    with pytest.raises(UrdfError, match="nested"):
+        RobotModel.from_urdf("<robot name='r'>" + "<a>" * 40 + "</a>" * 40 + "</robot>")
+    # A billion-laughs document is refused before any expansion.
+    bomb = (
+        '<!DOCTYPE r [<!ENTITY a "aaaaaaaaaa">'
+        + "".join(f'<!ENTITY a{i} "{("&a;" if i == 0 else f"&a{i - 1};") * 10}">' for i in range(9))
+        + ']><robot name="r">&a8;</robot>'
+    )
+    with pytest.raises(UrdfError, match="DTD"):
+        RobotModel.from_urdf(bomb)
+
+
+def test_geometry_and_unknown_elements_are_ignored():
+    link = "<link name='l3'><visual><geometry><box size='not numbers'/></geometry></visual></link>"
+    text = _third("fixed", link=link).replace("</robot>", "<gazebo>anything</gazebo></robot>")
+    model = RobotModel.from_urdf(text)
+    assert model.n_joints == 2 and model.end_effector_name == "l3"
