@@ -6,14 +6,17 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Callable, Iterator
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
-from fastapi import Depends, Path, Request
+from fastapi import Depends, Path, Request, Response, status
 from fastapi.routing import APIRoute
+from sqlalchemy import delete
 from sqlalchemy.orm import Session
 from starlette.convertors import Convertor, register_url_convertor
 
 from service.db import Database
+from service.errors import NotFoundError
+from service.models import Base
 from service.settings import Settings
 
 
@@ -83,3 +86,22 @@ class SessionRoute(APIRoute):
         if not inspect.iscoroutinefunction(endpoint):
             endpoint = _releasing_sessions(endpoint)
         super().__init__(path, endpoint, **kwargs)
+
+
+RowT = TypeVar("RowT", bound=Base)
+
+
+def load_row(session: Session, model: type[RowT], row_id: str, kind: str) -> RowT:
+    """The row ``row_id`` of ``model``, or a 404 naming the ``kind`` of thing it is."""
+    row = session.get(model, row_id)
+    if row is None:
+        raise NotFoundError(kind, row_id)
+    return row
+
+
+def delete_row(session: Session, model: type[Base], row_id: str, kind: str) -> Response:
+    """Delete the row ``row_id`` of ``model``: 204, or a 404 naming the ``kind``."""
+    statement = delete(model).where(model.__table__.c.id == row_id)
+    if session.execute(statement).rowcount == 0:  # type: ignore[attr-defined]
+        raise NotFoundError(kind, row_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

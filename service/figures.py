@@ -297,49 +297,39 @@ def fig_gjm_determinant(data: PlanData) -> Figure:
     return fig
 
 
-def fig_joint_velocities(data: PlanData) -> Figure:
-    """Joint speeds in deg/s with the speed limit (paper Figs. 6 and 9)."""
-    fig, (ax,) = _new(1, _title(data, "Joint velocities"))
+def _joint_lines(ax: Axes, data: PlanData, degrees: np.ndarray, si: np.ndarray, unit: str, what: str, **kw: Any) -> None:
+    """One line per joint: revolute joints from ``degrees (N+1, n)`` on ``ax``, prismatic ones
+    from ``si (N+1, n)`` (``unit``, m or m/s) on a second y axis labelled ``what``."""
     prismatic = data.prismatic
     for j in np.flatnonzero(~prismatic):
-        _line(ax, data.t, data.qd_deg_s[:, j], label=f"joint {j + 1}", drawstyle="steps-post", color=f"C{j % 10}")
+        _line(ax, data.t, degrees[:, j], label=f"joint {j + 1}", color=f"C{j % 10}", **kw)
+    if prismatic.any():
+        ax_m = ax.twinx()
+        for j in np.flatnonzero(prismatic):
+            _line(ax_m, data.t, si[:, j], label=f"joint {j + 1} [{unit}]", color=f"C{j % 10}", linestyle="--", **kw)
+        ax_m.set_ylabel(f"prismatic {what} [{unit}]")
+        _legend(ax_m, 1)
+
+
+def fig_joint_velocities(data: PlanData) -> Figure:
+    """Joint speeds in deg/s (prismatic joints in m/s) with the speed limit (paper Figs. 6 and 9)."""
+    fig, (ax,) = _new(1, _title(data, "Joint velocities"))
+    _joint_lines(ax, data, data.qd_deg_s, data.qd, "m/s", "joint velocity", drawstyle="steps-post")
     limit = data.speed_limit_deg_s
     if limit is not None:
         ax.axhline(limit, color="C3", linestyle="--", linewidth=1, label=f"limit ±{limit:g} deg/s")
         ax.axhline(-limit, color="C3", linestyle="--", linewidth=1)
     ax.set_ylabel("joint velocity [deg/s]")
-    if prismatic.any():  # prismatic joints in m/s, on their own axis
-        ax_m = ax.twinx()
-        for j in np.flatnonzero(prismatic):
-            _line(
-                ax_m,
-                data.t,
-                data.qd[:, j],
-                label=f"joint {j + 1} [m/s]",
-                drawstyle="steps-post",
-                color=f"C{j % 10}",
-                linestyle="--",
-            )
-        ax_m.set_ylabel("prismatic joint velocity [m/s]")
-        _legend(ax_m, 1)
     _shade([ax], data, legend_on=ax)
     _legend(ax, 2)
     return fig
 
 
 def fig_joint_angles(data: PlanData) -> Figure:
-    """Joint angles in deg (paper Fig. 8)."""
+    """Joint angles in deg (prismatic joints in m) (paper Fig. 8)."""
     fig, (ax,) = _new(1, _title(data, "Joint angles"))
-    prismatic = data.prismatic
-    for j in np.flatnonzero(~prismatic):
-        _line(ax, data.t, data.q_deg[:, j], label=f"joint {j + 1}", color=f"C{j % 10}")
+    _joint_lines(ax, data, data.q_deg, data.q, "m", "joint position")
     ax.set_ylabel("joint angle [deg]")
-    if prismatic.any():  # prismatic joints in metres, on their own axis
-        ax_m = ax.twinx()
-        for j in np.flatnonzero(prismatic):
-            _line(ax_m, data.t, data.q[:, j], label=f"joint {j + 1} [m]", color=f"C{j % 10}", linestyle="--")
-        ax_m.set_ylabel("prismatic joint position [m]")
-        _legend(ax_m, 1)
     _shade([ax], data, legend_on=ax)
     _legend(ax, 2)
     return fig

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from fastapi import APIRouter, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import delete, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from engine import axis_values, landscape
@@ -17,7 +17,7 @@ from engine.errors import ParameterError
 from service import figures, jsonio
 from service.convert import build_task, clean, field_path, resolve_robot
 from service.db import Database
-from service.deps import LandscapeId, SessionDep, SessionRoute, SettingsDep
+from service.deps import LandscapeId, SessionDep, SessionRoute, SettingsDep, delete_row, load_row
 from service.errors import ApiValidationError, NotFoundError, responses
 from service.models import Landscape, TuningJob
 from service.quota import check_quota
@@ -175,10 +175,7 @@ def _create(db: Database, body: LandscapeRequest, settings: Settings) -> Respons
 
 
 def _load(session: Session, landscape_id: str) -> Landscape:
-    row = session.get(Landscape, landscape_id)
-    if row is None:
-        raise NotFoundError("landscape", landscape_id)
-    return row
+    return load_row(session, Landscape, landscape_id, "landscape")
 
 
 @router.get(
@@ -203,9 +200,7 @@ def get_landscape(landscape_id: LandscapeId, session: SessionDep) -> Response:
     responses=responses(404),
 )
 def delete_landscape(landscape_id: LandscapeId, session: SessionDep) -> Response:
-    if session.execute(delete(Landscape).where(Landscape.id == landscape_id)).rowcount == 0:  # type: ignore[attr-defined]
-        raise NotFoundError("landscape", landscape_id)
-    return Response(status_code=status.HTTP_204_NO_CONTENT)
+    return delete_row(session, Landscape, landscape_id, "landscape")
 
 
 @router.get(

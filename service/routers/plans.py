@@ -18,7 +18,7 @@ from typing import Annotated, Any
 import numpy as np
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import delete, func, select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from engine import PlanResult, RobotModel, make_inverse, make_secondary, plan, replay
@@ -27,7 +27,7 @@ from engine.redundancy import SecondaryObjective
 from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
 from service.db import Database
-from service.deps import PlanId, SessionDep, SessionRoute, SettingsDep
+from service.deps import PlanId, SessionDep, SessionRoute, SettingsDep, delete_row
 from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
 from service.models import Plan
 from service.quota import check_quota
@@ -301,6 +301,4 @@ def get_plan(plan_id: PlanId, session: SessionDep, fields: FieldsQuery = None) -
     responses=responses(404),
 )
 def delete_plan(plan_id: PlanId, session: SessionDep) -> Response:
-    if session.execute(delete(Plan).where(Plan.id == plan_id)).rowcount == 0:  # type: ignore[attr-defined]
-        raise NotFoundError("plan", plan_id)
-    return Response(status_code=status.HTTP_204_NO_CONTENT)
+    return delete_row(session, Plan, plan_id, "plan")

@@ -18,8 +18,8 @@ from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from service import jsonio
 from service.convert import clean, joint_positions, robot_model, urdf_model
-from service.deps import SessionDep, SessionRoute, SettingsDep
-from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, responses
+from service.deps import SessionDep, SessionRoute, SettingsDep, load_row
+from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, responses
 from service.models import Robot
 from service.quota import check_quota
 from service.schemas import JacobianOut, JacobianRequest, JointOut, RobotList, RobotOut, RobotParams, RobotUrdfIn
@@ -73,10 +73,7 @@ def robot_out(robot: Robot) -> RobotOut:
 
 
 def load_robot(session: Session, robot_id: str) -> Robot:
-    robot = session.get(Robot, robot_id)
-    if robot is None:
-        raise NotFoundError("robot", robot_id)
-    return robot
+    return load_row(session, Robot, robot_id, "robot")
 
 
 @router.get("", operation_id="list_robots", response_model=RobotList, summary="List robots", responses=responses(422))

@@ -14,8 +14,8 @@ from sqlalchemy.orm import Session
 from service import jsonio, queue
 from service.convert import resolve_robot
 from service.db import Database
-from service.deps import JobId, SessionDep, SessionRoute, SettingsDep
-from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, NotFoundError, TooManyRequestsError, responses
+from service.deps import JobId, SessionDep, SessionRoute, SettingsDep, load_row
+from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, TooManyRequestsError, responses
 from service.jobs import MAX_JOB_JOINT_STEPS, validate_request
 from service.models import TuningJob
 from service.quota import check_quota
@@ -222,10 +222,7 @@ def list_tuning_jobs(
 
 
 def _load(session: SessionDep, job_id: JobId) -> TuningJob:
-    job = session.get(TuningJob, job_id)
-    if job is None:
-        raise NotFoundError("tuning job", job_id)
-    return job
+    return load_row(session, TuningJob, job_id, "tuning job")
 
 
 @router.get(

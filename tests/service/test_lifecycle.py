@@ -169,15 +169,15 @@ def test_delete_plans_and_jobs(make_stack: Callable[..., Stack]) -> None:
 
 def test_retention_deletes_old_finished_jobs_and_plans(make_stack: Callable[..., Stack]) -> None:
     stack = make_stack()
-    stack.env.update({"SPACEARM_RETENTION_DAYS": str(3.0 / 86400), "SPACEARM_RETENTION_SWEEP_S": "0.5"})
+    stack.env.update({"SPACEARM_RETENTION_DAYS": str(10.0 / 86400), "SPACEARM_RETENTION_SWEEP_S": "0.5"})
     stack.start_api()
     with stack.client() as c:
         plan_id = c.post("/v1/plans", params={"fields": ""}, json={"robot_id": "table1", "task": PAPER_TASK}).json()["id"]
         finished = c.post("/v1/tuning-jobs", json=job_body()).json()["id"]
         c.post(f"/v1/tuning-jobs/{finished}/cancel")  # a queued job cancelled: finished at once
         waiting = c.post("/v1/tuning-jobs", json=job_body(population=5)).json()["id"]
-        assert c.get(f"/v1/plans/{plan_id}").status_code == 200  # younger than 3 s
-        wait_for(lambda: c.get(f"/v1/plans/{plan_id}").status_code == 404, timeout=30, interval=0.2)
+        assert c.get(f"/v1/plans/{plan_id}").status_code == 200  # younger than 10 s
+        wait_for(lambda: c.get(f"/v1/plans/{plan_id}").status_code == 404, timeout=40, interval=0.2)
         wait_for(lambda: c.get(f"/v1/tuning-jobs/{finished}").status_code == 404, timeout=30, interval=0.2)
         assert c.get(f"/v1/tuning-jobs/{waiting}").json()["status"] == "queued"  # never deleted while queued
     stack.stop_api()
