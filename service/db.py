@@ -226,13 +226,15 @@ class Database:
             url, busy_timeout_ms, pool_size=pool_size, max_overflow=max_overflow, pool_timeout_s=pool_timeout_s
         )
         self.sessionmaker = sessionmaker(self.engine, expire_on_commit=False)
-        self._identity: tuple[int, int] | None = None
+        self._identity: tuple[int, int, bool] | None = None
         self._lock = threading.Lock()
 
     def check_file(self) -> None:
         """Raise :class:`DatabaseUnavailableError` if the SQLite file is missing; if the path now
-        names another file (restored from a backup, migrated anew), drop the pooled connections
-        so the next ones open it."""
+        names another file (restored from a backup, migrated anew), or the file became writable
+        or read-only for this process, drop the pooled connections so the next ones open it
+        afresh (SQLite opens a file it may not write read-only, and such a connection stays
+        read-only after the file is writable again)."""
         if self.path is None:
             return
         try:
@@ -241,12 +243,17 @@ class Database:
             raise DatabaseUnavailableError(
                 f"the database file {self.path} is missing: restore it, or create it with `spacearm migrate`"
             ) from None
-        identity = (st.st_dev, st.st_ino)
+        identity = (st.st_dev, st.st_ino, os.access(self.path, os.W_OK))
         with self._lock:
             if self._identity is None:
                 self._identity = identity
-            elif identity != self._identity:
+            elif identity[:2] != self._identity[:2]:
                 log.warning("the database file %s was replaced: reconnecting", self.path)
+                self._identity = identity
+                self.engine.dispose()
+            elif identity != self._identity:
+                state = "writable" if identity[2] else "read-only"
+                log.warning("the database file %s became %s: reconnecting", self.path, state)
                 self._identity = identity
                 self.engine.dispose()
 

@@ -129,7 +129,7 @@ def plan_summary(p: Plan) -> PlanSummary:
 
 def plan_json(summary: PlanSummary, sections: dict[str, Any]) -> bytes:
     """The JSON body of a plan: its summary and ``sections`` (numpy arrays allowed)."""
-    return jsonio.dumps({**summary.model_dump(mode="json"), **sections})
+    return jsonio.dumps_large({**summary.model_dump(mode="json"), **sections})
 
 
 @router.post(

@@ -39,12 +39,12 @@ def free_port() -> int:
 class Proc:
     """A ``python -m service ...`` subprocess with its log file."""
 
-    def __init__(self, args: list[str], env: dict[str, str], log: Path) -> None:
+    def __init__(self, args: list[str], env: dict[str, str], log: Path, prefix: tuple[str, ...] = ()) -> None:
         self.args = args
         self.log = log
         self._fh = log.open("ab")
         self.popen = subprocess.Popen(
-            [sys.executable, "-m", "service", *args], cwd=ROOT, env=env, stdout=self._fh, stderr=subprocess.STDOUT
+            [*prefix, sys.executable, "-m", "service", *args], cwd=ROOT, env=env, stdout=self._fh, stderr=subprocess.STDOUT
         )
 
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 15.0) -> int:
@@ -84,9 +84,10 @@ class Stack:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def start_api(self) -> None:
+    def start_api(self, prefix: tuple[str, ...] = ()) -> None:
+        """Start the API (``prefix``: a command it runs under, e.g. one that drops privileges)."""
         self.port = free_port()
-        self.api = Proc(["serve", "--host", "127.0.0.1", "--port", str(self.port)], self.env, self.dir / "api.log")
+        self.api = Proc(["serve", "--host", "127.0.0.1", "--port", str(self.port)], self.env, self.dir / "api.log", prefix)
         # Ready for tests once it answers and its kernels are in (the database may be at any state).
         deadline = time.monotonic() + 300
         while time.monotonic() < deadline:
