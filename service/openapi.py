@@ -2,8 +2,9 @@
 adds to every operation (authentication, optional without keys; body limit; busy database and
 admission with ``Retry-After``; quota), error responses as problem+json, links and the
 ``Location`` header from the operations that create a resource to those that read it (clients
-and stateful fuzzers follow them), ``robot_id`` xor ``robot`` as a ``oneOf``, and request
-defaults stated in descriptions so that generated types leave them optional."""
+and stateful fuzzers follow them), ``robot_id`` xor ``robot`` as a ``oneOf``, the models of raw
+bodies as components, and request defaults stated in descriptions so that generated types leave
+them optional."""
 
 from __future__ import annotations
 
@@ -14,11 +15,15 @@ from typing import Any
 from fastapi import FastAPI
 
 from service.errors import PROBLEM_JSON
-from service.schemas import ROBOT_CHOICE
+from service.schemas import ROBOT_CHOICE, RobotUrdfIn
 
 BEARER = "bearerAuth"
 RETRY_AFTER = {"Retry-After": {"schema": {"type": "integer", "minimum": 1}, "description": "seconds to wait before retrying"}}
 LOCATION = {"Location": {"schema": {"type": "string"}, "description": "the path of the resource created (or accepted)"}}
+
+#: Request models that a route reads from a raw body (documented by its ``openapi_extra``, so
+#: FastAPI does not see them): added to the components under their own names.
+BODY_MODELS = (RobotUrdfIn,)
 
 #: Operations that store something (and answer 507 when the storage quota is spent).
 STORING = ("create_plan", "create_shortest_duration_plan", "create_robot", "create_tuning_job", "create_landscape")
@@ -165,6 +170,16 @@ def split_robot_choice(doc: dict[str, Any]) -> None:
         }
 
 
+def document_body_models(doc: dict[str, Any]) -> None:
+    """The schemas of :data:`BODY_MODELS` as components."""
+    schemas = doc.setdefault("components", {}).setdefault("schemas", {})
+    for model in BODY_MODELS:
+        schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+        for name, sub in schema.pop("$defs", {}).items():
+            schemas.setdefault(name, sub)
+        schemas.setdefault(model.__name__, schema)
+
+
 def schema_refs(node: Any) -> set[str]:
     """The names of the component schemas ``node`` refers to directly."""
     if isinstance(node, dict):
@@ -220,6 +235,7 @@ def install(app: FastAPI, auth_required: bool) -> None:
         document_guards(doc, auth_required)
         document_links(doc)
         split_robot_choice(doc)
+        document_body_models(doc)
         document_request_defaults(doc)
         for item in doc.get("paths", {}).values():
             for op in item.values():

@@ -104,7 +104,8 @@ CREATE_ROBOT_BODY: dict[str, Any] = {
         "required": True,
         "content": {
             "application/json": {
-                "schema": {"oneOf": [_schema_ref(RobotParams), RobotUrdfIn.model_json_schema()]},
+                # RobotUrdfIn is added to the document's components by service.openapi (BODY_MODELS)
+                "schema": {"oneOf": [_schema_ref(RobotParams), _schema_ref(RobotUrdfIn)]},
                 "examples": {
                     "urdf": {
                         "summary": "a URDF robot (the URDF as text in the `urdf` field)",

@@ -88,6 +88,13 @@ def test_generated_python_client_runs_the_whole_flow(stack: Stack, spacearm_clie
     assert created_robot.status_code == 201 and isinstance(robot, m.RobotOut), created_robot.content
     assert created_robot.headers["location"] == f"/v1/robots/{robot.id}"
     assert robot.preset is False and robot.parameters.links[2].mass == table1.parameters.links[2].mass
+    assert [(j.type_, j.unit) for j in robot.joints] == [(m.JointType.REVOLUTE, m.JointUnit.DEG)] * 6
+    # the same robot through its URDF (text), stored again from it
+    urdf = _op("robots", "get_robot_urdf").sync(robot_id=robot.id, client=api)
+    assert isinstance(urdf, str) and urdf.lstrip().startswith("<")
+    from_urdf = _op("robots", "create_robot").sync(client=api, body=m.RobotUrdfIn(urdf=urdf, name="from urdf"))
+    assert isinstance(from_urdf, m.RobotOut) and from_urdf.n_joints == 6, from_urdf
+    assert _op("robots", "delete_robot").sync_detailed(robot_id=from_urdf.id, client=api).status_code == 204
 
     # the paper's task (a preset), planned with typed method parameters
     preset = _op("tasks", "get_task_preset").sync(name="paper-line", client=api)
@@ -185,9 +192,10 @@ def test_typescript_client_type_checks_and_runs_the_whole_flow(stack: Stack) -> 
     )
     assert flow.returncode == 0, flow.stdout + flow.stderr
     out = json.loads(flow.stdout)
-    assert out["type_checks"] == 18
+    assert out["type_checks"] == 20
     assert out["robot_status"] == 201 and out["robot_location"] == f"/v1/robots/{out['robot_id']}"
     assert out["robot_links"] == 6 and out["task_dt_s"] == 0.25
+    assert out["robot_joint_types"] == ["revolute"] * 6 and out["urdf_robot_joints"] == 6
     assert out["plan_status"] == 201 and out["plan_location"] == f"/v1/plans/{out['plan_id']}"
     assert out["plan_method"] == "adaptive" and out["plan_params"] == {"lambda_max": 0.06, "epsilon": 0.12}
     assert out["plan_success"] is True and out["attitude_term"] == "eq18" and 0 < out["max_joint_speed_deg_s"] <= 6.0

@@ -22,6 +22,7 @@ from service.settings import Settings
 #: Response fields that may really be absent, and why.
 OPTIONAL_IN_RESPONSES = {
     "PlanOut": {"trajectory", "replay"},  # sections chosen with `fields=`
+    "Trajectory": {"joint_displacements_m", "joint_velocities_m_s"},  # robots with prismatic joints only
     "Health": {"kernels", "database", "revision", "head"},  # liveness has only `status`
     "Problem": {"instance", "errors"},  # `errors` only on a 422
     "MethodParams": {p.name for spec in METHODS.values() for p in spec.params},  # the method's own only
@@ -67,7 +68,7 @@ def test_quantities_state_their_units(doc: dict[str, Any]) -> None:
         r"_(m|s|deg|rad|kg|deg_s|m_s|m_s2|deg_s2|n_s|n_m_s|m_rad|percent)\b|\b(m|s|deg|rad|kg|1/s|N s|N m s|deg/s|m/s|"
         r"rad/s|m rad|m\^3|kg m\^2|percent|dimensionless)\b|singular values|0 to 1|\bB\b|probability|generation|"
         r"individuals|plans|bits|steps|rounds|count|number of|times|claims|HTTP status|indices|durations planned|_quaternion|"
-        r"_index"
+        r"_index|\bindex\b"
     )
     for name, schema in doc["components"]["schemas"].items():
         for prop, spec in schema.get("properties", {}).items():
@@ -117,6 +118,8 @@ def test_response_fields_are_required_and_typed(doc: dict[str, Any]) -> None:
             for node in [spec, *spec.get("anyOf", [])]:
                 assert not (node.get("type") == "object" and "properties" not in node), f"{name}.{prop} is untyped"
     assert schema_refs(schemas["RobotOut"]["properties"]["parameters"]) == {"RobotParams"}
+    robot_body = ops["create_robot"]["requestBody"]["content"]["application/json"]["schema"]
+    assert schema_refs(robot_body) == {"RobotParams", "RobotUrdfIn"} and "RobotUrdfIn" in requests
     assert schema_refs(schemas["MethodOut"]["properties"]["params"]) == {"MethodParams"}
     for name, prop in (("TuningJobResult", "best_params"), ("JobProgress", "best_params"), ("LandscapeOut", "best_params")):
         assert schema_refs(schemas[name]["properties"][prop]) == {"MethodParams"}, name

@@ -1,9 +1,9 @@
 // The whole flow of a spacearm client in TypeScript, type-checked with `tsc --strict` against the
 // types openapi-typescript generates from the live OpenAPI document (generated/spacearm.ts) and
 // run with node against a live API (tests/service/test_generated_client.py): copy the paper's
-// robot, plan the paper's task preset, read the plan back, download its figures, submit a small
-// tuning job, poll it to completion, read its result and its event stream, download its
-// convergence figure, then delete the plan, the job and the robot.
+// robot (and once more from its URDF), plan the paper's task preset, read the plan back, download
+// its figures, submit a small tuning job, poll it to completion, read its result and its event
+// stream, download its convergence figure, then delete the plan, the job and the robots.
 // Usage: node build/flow.js <base URL>; prints a JSON summary on stdout.
 import createClient from "openapi-fetch";
 
@@ -27,6 +27,8 @@ const typeChecks: [
     IsRequired<Schemas["TuningJobResult"], "warnings">,
     IsRequired<Schemas["RobotOut"], "parameters">,
     Equal<Schemas["RobotOut"]["parameters"], Schemas["RobotParams"]>,
+    IsRequired<Schemas["RobotOut"], "joints">,
+    Equal<Schemas["JointOut"]["type"], "revolute" | "prismatic">,
     Equal<Schemas["MethodName"], "inverse" | "dls" | "adaptive" | "wdls" | "sdls" | "svf">,
     Equal<Schemas["JobStatus"], "queued" | "running" | "succeeded" | "failed" | "cancelled">,
     Equal<Schemas["AggregationName"], "max" | "rms" | "final">,
@@ -36,7 +38,7 @@ const typeChecks: [
     Equal<Schemas["MethodOut"]["params"]["lambda_max"], number | undefined>,
     // a request's defaulted field may be left out
     Equal<IsRequired<Schemas["TaskIn"], "dt_s">, false>,
-] = [true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true];
+] = [true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true];
 
 const FINISHED: ReadonlySet<Schemas["JobStatus"]> = new Set(["succeeded", "failed", "cancelled"]);
 
@@ -61,6 +63,12 @@ async function main(baseUrl: string): Promise<void> {
     const robotCreated = await client.POST("/v1/robots", { body: robotParams });
     if (robotCreated.error !== undefined) fail("create_robot", robotCreated.error);
     const robot: Schemas["RobotOut"] = robotCreated.data;
+    // and once more from its URDF (text), stored as another robot
+    const urdf = await client.GET("/v1/robots/{robot_id}/urdf", { params: { path: { robot_id: robot.id } }, parseAs: "text" });
+    if (urdf.error !== undefined) fail("get_robot_urdf", urdf.error);
+    const urdfBody: Schemas["RobotUrdfIn"] = { urdf: urdf.data, name: "typescript urdf copy" };
+    const fromUrdf = await client.POST("/v1/robots", { body: urdfBody });
+    if (fromUrdf.error !== undefined) fail("create_robot (urdf)", fromUrdf.error);
 
     // the paper's task preset, planned with adaptive damping
     const preset = await client.GET("/v1/task-presets/{name}", { params: { path: { name: "paper-line" } } });
@@ -127,6 +135,7 @@ async function main(baseUrl: string): Promise<void> {
     const deletedPlan = await client.DELETE("/v1/plans/{plan_id}", { params: { path: { plan_id: plan.id } } });
     const deletedJob = await client.DELETE("/v1/tuning-jobs/{job_id}", { params: { path: { job_id: job.id } } });
     const deletedRobot = await client.DELETE("/v1/robots/{robot_id}", { params: { path: { robot_id: robot.id } } });
+    await client.DELETE("/v1/robots/{robot_id}", { params: { path: { robot_id: fromUrdf.data.id } } });
     const missing = await client.GET("/v1/plans/{plan_id}", { params: { path: { plan_id: plan.id } } });
     const problem: Schemas["Problem"] | undefined = missing.error;
 
@@ -136,6 +145,8 @@ async function main(baseUrl: string): Promise<void> {
         robot_location: robotCreated.response.headers.get("Location"),
         robot_id: robot.id,
         robot_links: robot.parameters.links.length,
+        robot_joint_types: robot.joints.map((j) => j.type),
+        urdf_robot_joints: fromUrdf.data.n_joints,
         task_dt_s: task.dt_s ?? null,
         plan_id: plan.id,
         plan_status: created.response.status,
