@@ -22,7 +22,7 @@ from service.admission import Admission
 from service.db import Database
 from service.migrate import seed_presets
 from service.retention import Sweeper
-from service.routers import figures, health, job_events, landscapes, plans, robots, shortest, tasks, tuning, web
+from service.routers import docs, figures, health, job_events, landscapes, plans, robots, shortest, tasks, tuning, web
 from service.settings import Settings
 
 DESCRIPTION = """
@@ -152,11 +152,21 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         db.dispose()
         app.state.health_db.dispose()
 
-    app = FastAPI(title="spacearm", version="0.1.0", description=DESCRIPTION, openapi_tags=TAGS, lifespan=lifespan)
+    # /docs and /redoc are ours (service.routers.docs): offline assets, no inline script
+    app = FastAPI(
+        title="spacearm",
+        version="0.1.0",
+        description=DESCRIPTION,
+        openapi_tags=TAGS,
+        lifespan=lifespan,
+        docs_url=None,
+        redoc_url=None,
+    )
     errors.install(app)
     security.install(app, settings)
     openapi.install(app, auth_required=bool(settings.keys()))
-    for module in (health, robots, tasks, plans, shortest, tuning, job_events, landscapes, figures, web):
+    for module in (health, robots, tasks, plans, shortest, tuning, job_events, landscapes, figures, web, docs):
         app.include_router(module.router)
+    app.mount(docs.ASSETS_URL, docs.assets(), name="docs-assets")
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     return app

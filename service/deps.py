@@ -8,14 +8,14 @@ import inspect
 from collections.abc import Callable, Iterator
 from typing import Annotated, Any, TypeVar
 
-from fastapi import Depends, Path, Request, Response, status
+from fastapi import Depends, Path, Query, Request, Response, status
 from fastapi.routing import APIRoute
 from sqlalchemy import delete
 from sqlalchemy.orm import Session
 from starlette.convertors import Convertor, register_url_convertor
 
 from service.db import Database
-from service.errors import NotFoundError
+from service.errors import MAX_OFFSET, NotFoundError
 from service.models import Base
 from service.settings import Settings
 
@@ -41,6 +41,10 @@ JobId = Annotated[str, Path(pattern=ID_PATTERN, description="a tuning job's id (
 LandscapeId = Annotated[
     str, Path(pattern=ID_PATTERN, description="an objective landscape's id (32 hex digits)", examples=["0" * 32])
 ]
+RobotId = Annotated[str, Path(description="a stored robot's id (`table1`: the paper's Table-1 robot)", examples=["table1"])]
+#: A page of a list: `limit` items after the first `offset`.
+Limit = Annotated[int, Query(ge=1, le=500, description="items per page")]
+Offset = Annotated[int, Query(ge=0, le=MAX_OFFSET, description="items to skip (the page's start)")]
 
 
 def get_db(request: Request) -> Database:

@@ -200,18 +200,20 @@ def install(app: FastAPI) -> None:
 
 class FieldError(BaseModel):
     field: str = Field(description="dotted path of the offending field, e.g. body.task.q0_deg")
-    loc: list[str | int]
-    message: str
+    loc: list[str | int] = Field(
+        description="the same path as a list: where (`body`, `query`, `path`, `header`), then names and indices"
+    )
+    message: str = Field(description="what is wrong with it")
 
 
 class Problem(BaseModel):
     """RFC 9457 problem details."""
 
     type: str = Field(description="URI identifying the problem type")
-    title: str
-    status: int
+    title: str = Field(description="the HTTP status's reason phrase")
+    status: int = Field(description="the HTTP status code")
     detail: str = Field(description="what went wrong, for a person")
-    instance: str | None = None
+    instance: str | None = Field(default=None, description="the request's path")
     errors: list[FieldError] | None = Field(default=None, description="validation errors with field paths (422)")
 
 

@@ -66,7 +66,7 @@ def validate_request(model: RobotModel, body: TuningJobRequest) -> None:
             [{"loc": ["body", "method"], "msg": f"must be one of {', '.join(tunable)}"}],
         )
     try:
-        check_bounds(body.method, body.bounds)
+        check_bounds(body.method, body.bounds.given() if body.bounds else None)
     except ParameterError as exc:
         loc = ["body", *field_path(exc.field)]
         raise ApiValidationError(str(exc), [{"loc": loc, "msg": exc.reason}]) from None
@@ -198,7 +198,7 @@ def run_job(
     except ApiError as exc:
         return fail(f"invalid job: {exc.detail}")
 
-    phases = [(body.method, body.bounds)] + ([("dls", None)] if body.compare_with_dls else [])
+    phases = [(body.method, body.bounds.given() if body.bounds else None)] + ([("dls", None)] if body.compare_with_dls else [])
     gens = body.ga.generations
     total = gens * len(phases)
     history: list[dict[str, Any]] = []

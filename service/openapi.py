@@ -1,19 +1,29 @@
-"""The OpenAPI document: what the middleware adds to every operation (authentication, body
-limit, busy database, quota), error responses as problem+json, and links from the operations
-that create a resource to those that read it (clients and stateful fuzzers follow them)."""
+"""The OpenAPI document, post-processed for clients, generators and fuzzers: what the middleware
+adds to every operation (authentication, optional without keys; body limit; busy database and
+admission with ``Retry-After``; quota), error responses as problem+json, links and the
+``Location`` header from the operations that create a resource to those that read it (clients
+and stateful fuzzers follow them), ``robot_id`` xor ``robot`` as a ``oneOf``, the models of raw
+bodies as components, and request defaults stated in descriptions so that generated types leave
+them optional."""
 
 from __future__ import annotations
 
 import copy
+import json
 from typing import Any
 
 from fastapi import FastAPI
 
 from service.errors import PROBLEM_JSON
-from service.schemas import ROBOT_CHOICE
+from service.schemas import ROBOT_CHOICE, RobotUrdfIn
 
 BEARER = "bearerAuth"
 RETRY_AFTER = {"Retry-After": {"schema": {"type": "integer", "minimum": 1}, "description": "seconds to wait before retrying"}}
+LOCATION = {"Location": {"schema": {"type": "string"}, "description": "the path of the resource created (or accepted)"}}
+
+#: Request models that a route reads from a raw body (documented by its ``openapi_extra``, so
+#: FastAPI does not see them): added to the components under their own names.
+BODY_MODELS = (RobotUrdfIn,)
 
 #: Operations that store something (and answer 507 when the storage quota is spent).
 STORING = ("create_plan", "create_shortest_duration_plan", "create_robot", "create_tuning_job", "create_landscape")
@@ -68,10 +78,14 @@ LINKS: dict[str, tuple[str, dict[str, tuple[str, dict[str, str]]]]] = {
 
 
 def document_guards(doc: dict[str, Any], auth_required: bool) -> None:
-    """Document what the middleware adds to every ``/v1`` operation: bearer authentication (401;
-    optional, ``{}`` among the requirements, when no keys are configured), the body-size limit
-    (413), the queue limit of job submission (429), the admission and a busy or failing database
-    (503 with ``Retry-After``) and the storage quota (507)."""
+    """Document what the middleware adds to every ``/v1`` operation: bearer authentication (401),
+    the body-size limit (413), the queue limit of job submission (429), the admission and a busy
+    or failing database (503 with ``Retry-After``) and the storage quota (507).
+
+    With keys, each ``/v1`` operation requires the bearer scheme. Without, the scheme is optional
+    (``{}`` among the requirements) for the whole document, at its root: client generators that
+    see a requirement on an operation ask for an authenticated client there (openapi-python-client
+    types such operations with ``AuthenticatedClient``), and none is needed."""
     schemes = doc.setdefault("components", {}).setdefault("securitySchemes", {})
     schemes[BEARER] = {
         "type": "http",
@@ -79,7 +93,9 @@ def document_guards(doc: dict[str, Any], auth_required: bool) -> None:
         "description": "`Authorization: Bearer <key>` with a key of `SPACEARM_API_KEYS`; "
         "only enforced when that variable is set (otherwise the API is open and binds to 127.0.0.1 by default)",
     }
-    requirement: list[dict[str, list[str]]] = [{BEARER: []}] if auth_required else [{BEARER: []}, {}]
+    requirement: list[dict[str, list[str]]] = [{BEARER: []}]
+    if not auth_required:
+        doc["security"] = [{BEARER: []}, {}]
     for path, item in doc.get("paths", {}).items():
         if not path.startswith("/v1"):
             continue
@@ -87,7 +103,8 @@ def document_guards(doc: dict[str, Any], auth_required: bool) -> None:
             if not isinstance(op, dict) or "responses" not in op:
                 continue
             op_id = op.get("operationId")
-            op.setdefault("security", requirement)
+            if auth_required:
+                op.setdefault("security", requirement)
             resp = op["responses"]
             if auth_required:
                 resp.setdefault("401", {"description": "missing or invalid API key"})
@@ -111,10 +128,12 @@ def document_guards(doc: dict[str, Any], auth_required: bool) -> None:
 
 
 def document_links(doc: dict[str, Any]) -> None:
-    """OpenAPI links (see :data:`LINKS`) on the responses of the operations that create."""
+    """OpenAPI links (see :data:`LINKS`) and the ``Location`` header on the responses of the
+    operations that create."""
     by_id = {op.get("operationId"): op for item in doc.get("paths", {}).values() for op in item.values() if isinstance(op, dict)}
     for op_id, (code, links) in LINKS.items():
         response = by_id[op_id]["responses"][code]
+        response.setdefault("headers", {}).update(LOCATION)
         response["links"] = {
             name: {"operationId": target, "parameters": parameters}
             for name, (target, parameters) in links.items()
@@ -151,6 +170,55 @@ def split_robot_choice(doc: dict[str, Any]) -> None:
         }
 
 
+def document_body_models(doc: dict[str, Any]) -> None:
+    """The schemas of :data:`BODY_MODELS` as components."""
+    schemas = doc.setdefault("components", {}).setdefault("schemas", {})
+    for model in BODY_MODELS:
+        schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+        for name, sub in schema.pop("$defs", {}).items():
+            schemas.setdefault(name, sub)
+        schemas.setdefault(model.__name__, schema)
+
+
+def schema_refs(node: Any) -> set[str]:
+    """The names of the component schemas ``node`` refers to directly."""
+    if isinstance(node, dict):
+        found = {node["$ref"].rsplit("/", 1)[-1]} if isinstance(node.get("$ref"), str) else set()
+        return found.union(*(schema_refs(value) for value in node.values()))
+    if isinstance(node, list):
+        return set().union(*(schema_refs(value) for value in node))
+    return set()
+
+
+def reached_schemas(doc: dict[str, Any], node: Any) -> set[str]:
+    """The names of the component schemas ``node`` reaches, directly or through others."""
+    schemas = doc.get("components", {}).get("schemas", {})
+    reached: set[str] = set()
+    todo = schema_refs(node)
+    while todo:
+        name = todo.pop()
+        if name not in reached and name in schemas:
+            reached.add(name)
+            todo |= schema_refs(schemas[name])
+    return reached
+
+
+def document_request_defaults(doc: dict[str, Any]) -> None:
+    """In the schemas a request body reaches, a property's default is stated in its description
+    (``default `1.5```) instead of as ``default``. The server fills in what a request leaves
+    out, so such a property is optional; but TypeScript generators (openapi-typescript 7, by
+    default) type a property with a ``default`` in a component schema as always present (true
+    of responses, whose fields are ``required`` here anyway), and a client would have to send
+    every defaulted field. Query parameters keep their ``default``."""
+    schemas = doc.get("components", {}).get("schemas", {})
+    bodies = [op["requestBody"] for item in doc.get("paths", {}).values() for op in item.values() if "requestBody" in op]
+    for name in reached_schemas(doc, bodies):
+        for prop in schemas[name].get("properties", {}).values():
+            if "default" in prop:
+                default = json.dumps(prop.pop("default"))
+                prop["description"] = "; ".join(filter(None, [prop.get("description"), f"default `{default}`"]))
+
+
 def install(app: FastAPI, auth_required: bool) -> None:
     """Error responses are ``application/problem+json`` of the ``Problem`` schema in the document;
     guards and links as above."""
@@ -163,13 +231,18 @@ def install(app: FastAPI, auth_required: bool) -> None:
             title=app.title, version=app.version, description=app.description, routes=app.routes, tags=app.openapi_tags
         )
         ref = {"$ref": "#/components/schemas/Problem"}
+        fastapi_422 = {"$ref": "#/components/schemas/HTTPValidationError"}
         document_guards(doc, auth_required)
         document_links(doc)
         split_robot_choice(doc)
+        document_body_models(doc)
+        document_request_defaults(doc)
         for item in doc.get("paths", {}).values():
             for op in item.values():
                 for code, resp in op.get("responses", {}).items():
-                    if code.isdigit() and int(code) >= 400:
+                    # FastAPI's errors are ours (problem+json); a body of its own (readiness's 503) is kept
+                    schemas = [media.get("schema") for media in resp.get("content", {}).values()]
+                    if code.isdigit() and int(code) >= 400 and all(schema in (ref, fastapi_422) for schema in schemas):
                         resp["content"] = {PROBLEM_JSON: {"schema": ref}}
                         if code == "422":
                             resp["description"] = "invalid body or parameters (field paths in `errors`)"

@@ -8,6 +8,7 @@ keeps its plain ``q0_deg`` list."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from datetime import datetime
 from typing import Annotated, Any, Literal, get_args
 
@@ -23,14 +24,17 @@ from pydantic import (
 )
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema
+from typing_extensions import TypeAliasType
 
+from engine.inverses import METHODS, ParamSpec
 from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, check_weights
-from engine.paths import ARC_ATTITUDES, MAX_PASSES, MAX_WAYPOINTS, PATH_TYPES
-from engine.redundancy import MAX_CENTERING_GAIN
+from engine.model import JOINT_TYPES
+from engine.paths import ARC_ATTITUDES, MAX_PASSES, MAX_WAYPOINTS, PATH_TYPES, PROFILES
+from engine.redundancy import MAX_CENTERING_GAIN, SECONDARY_OBJECTIVES
 from engine.shortest import DEFAULT_RELATIVE_TOLERANCE
 from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
-from engine.trajectory import MAX_DURATION_S, MIN_DT_S, PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY
-from engine.tuning import MAX_BITS_PER_GENE, MAX_GENERATIONS, MAX_POPULATION
+from engine.trajectory import MAX_DURATION_S, MIN_DT_S, PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY, TRACKS
+from engine.tuning import MAX_BITS_PER_GENE, MAX_GENERATIONS, MAX_POPULATION, TASK_AGGREGATIONS
 from engine.urdf import MAX_URDF_BYTES
 
 # Every number in a request is bounded (an overflow inside the engine is ruled out by the schema).
@@ -42,7 +46,7 @@ MAX_MAGNITUDE = 1e6  # method parameters, gains, weights, quaternion components
 Length = Annotated[float, Field(ge=-MAX_LENGTH_M, le=MAX_LENGTH_M)]
 AngleDeg = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
 Magnitude = Annotated[float, Field(ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
-Mass = Annotated[float, Field(gt=0, le=MAX_MASS_KG, description="kg")]
+Mass = Annotated[float, Field(gt=0, le=MAX_MASS_KG, description="mass, kg")]
 Vec3 = Annotated[list[Length], Field(min_length=3, max_length=3)]
 Quaternion = Annotated[
     list[Magnitude],
@@ -64,10 +68,35 @@ JointValue = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
 JointValues = Annotated[list[JointValue | None], Field(min_length=1, max_length=12)]
 LimitValue = Annotated[float, Field(ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
 
-# The objective's options, as the engine defines them (checked below so the two cannot drift).
-AggregationName = Literal["max", "rms", "final"]
-AttitudeTermName = Literal["angle", "eq18"]
-assert set(get_args(AggregationName)) == set(AGGREGATIONS) and set(get_args(AttitudeTermName)) == set(ATTITUDE_TERMS)
+#: The unit of the GJM's determinant (and of the product of its singular values): three linear
+#: rows in m (m/s per rad/s) and three angular rows without unit.
+DET_UNITS = "m^3 (three rows in m per rad, three without unit)"
+
+# Closed vocabularies, each a named schema (an enum class in generated clients), as the engine
+# defines them (checked here so the two cannot drift). Literals, not enums: strict validation of
+# a stored request (a dict) accepts the plain strings.
+MethodName = TypeAliasType("MethodName", Literal["inverse", "dls", "adaptive", "wdls", "sdls", "svf"])
+TunableMethodName = TypeAliasType("TunableMethodName", Literal["dls", "adaptive", "wdls", "sdls", "svf"])
+AggregationName = TypeAliasType("AggregationName", Literal["max", "rms", "final"])
+AttitudeTermName = TypeAliasType("AttitudeTermName", Literal["angle", "eq18"])
+TaskAggregationName = TypeAliasType("TaskAggregationName", Literal["mean", "max"])
+TimeProfile = TypeAliasType("TimeProfile", Literal["trapezoidal", "quintic"])
+ArcAttitude = TypeAliasType("ArcAttitude", Literal["tangent", "fixed"])
+JobStatus = TypeAliasType("JobStatus", Literal["queued", "running", "succeeded", "failed", "cancelled"])
+JointType = TypeAliasType("JointType", Literal["revolute", "prismatic"])
+JointUnit = TypeAliasType("JointUnit", Literal["deg", "m"])
+TrackedQuantity = TypeAliasType("TrackedQuantity", Literal["pose", "position"])
+SecondaryObjective = TypeAliasType("SecondaryObjective", Literal["min_base_rotation", "joint_centering"])
+assert list(get_args(MethodName.__value__)) == list(METHODS)
+assert list(get_args(TunableMethodName.__value__)) == [name for name, spec in METHODS.items() if spec.params]
+assert set(get_args(AggregationName.__value__)) == set(AGGREGATIONS)
+assert set(get_args(AttitudeTermName.__value__)) == set(ATTITUDE_TERMS)
+assert set(get_args(TaskAggregationName.__value__)) == set(TASK_AGGREGATIONS)
+assert set(get_args(TimeProfile.__value__)) == set(PROFILES)
+assert set(get_args(ArcAttitude.__value__)) == set(ARC_ATTITUDES)
+assert list(get_args(JointType.__value__)) == list(JOINT_TYPES)
+assert set(get_args(TrackedQuantity.__value__)) == set(TRACKS)
+assert set(get_args(SecondaryObjective.__value__)) == set(SECONDARY_OBJECTIVES)
 AttitudeTerm = Annotated[
     AttitudeTermName,
     Field(
@@ -76,6 +105,12 @@ AttitudeTerm = Annotated[
         "attitude error as a rotation angle (rad), frame independent, under which that margin shrinks to a few per cent"
     ),
 ]
+
+
+AGGREGATION_DESCRIPTION = (
+    "how the errors along the plan enter B: `max` (the largest), `rms` (root mean square over the samples) or `final` "
+    "(at the end)"
+)
 
 
 def _weights(value: list[float]) -> list[float]:
@@ -131,6 +166,13 @@ class Input(BaseModel):
         return _no_nul(value)
 
 
+class Output(BaseModel):
+    """A response body: every field is always present (``required`` in the document's response
+    schemas, so generated clients type them without ``Unset``); a field that may be null says so."""
+
+    model_config = ConfigDict(json_schema_serialization_defaults_required=True)
+
+
 # --- robots -------------------------------------------------------------------------------
 
 
@@ -147,13 +189,15 @@ class JointLimits(Input):
 
 
 class LinkParams(Input):
-    name: str | None = Field(default=None, max_length=200)
+    name: str | None = Field(default=None, max_length=200, description="the link's name (for reports only)")
     mass: Mass
-    joint_type: Literal["revolute", "prismatic"] = Field(
+    joint_type: JointType = Field(
         default="revolute", description="revolute: q in rad about joint_axis; prismatic: q in m along it"
     )
     joint_name: str | None = Field(default=None, max_length=200, description="the joint's name (default `joint<i>`)")
-    joint_axis: Vec3 = Field(description="joint axis in the link frame (normalised; must not be zero)")
+    joint_axis: Vec3 = Field(
+        description="joint axis in the link frame, a direction (dimensionless; normalised, must not be zero)"
+    )
     a: Vec3 = Field(description="m, joint i to link i CoM (at q = 0), link frame")
     b: Vec3 = Field(description="m, link i CoM to joint i+1 (or the end effector), link frame")
     inertia: Inertia = Field(description="kg m^2 about the link CoM, link frame")
@@ -168,10 +212,12 @@ class EndEffectorParams(Input):
 class RobotParams(Input):
     """A robot parameter set in the schema of ``robot-table1.yaml`` (SI units)."""
 
-    name: str = Field(min_length=1, max_length=200)
-    base: BaseParams
-    links: list[LinkParams] = Field(min_length=1, max_length=12)
-    end_effector: EndEffectorParams | None = None
+    name: str = Field(min_length=1, max_length=200, description="the robot's name")
+    base: BaseParams = Field(description="the free-floating base (carrier)")
+    links: list[LinkParams] = Field(min_length=1, max_length=12, description="the links from the base out, one per joint")
+    end_effector: EndEffectorParams | None = Field(
+        default=None, description="the end-effector frame (default: the last link's frame)"
+    )
 
 
 class RobotUrdfIn(Input):
@@ -194,33 +240,39 @@ class RobotUrdfIn(Input):
     name: str | None = Field(default=None, min_length=1, max_length=200, description="the robot's name (default: the URDF's)")
 
 
-class JointOut(BaseModel):
-    name: str
-    type: Literal["revolute", "prismatic"]
-    unit: Literal["deg", "m"] = Field(description="the unit of its position in the API: `_deg` or `_m` lists")
+class JointOut(Output):
+    """A joint of a stored robot, with the unit of its position in the API and its limits."""
+
+    name: str = Field(description="the joint's name")
+    type: JointType = Field(description="revolute or prismatic")
+    unit: JointUnit = Field(description="the unit of its position in the API: `_deg` or `_m` lists")
     lower_deg: float | None = Field(default=None, description="revolute joints: lower position limit, deg (null: unlimited)")
-    upper_deg: float | None = None
+    upper_deg: float | None = Field(default=None, description="revolute joints: upper position limit, deg (null: unlimited)")
     lower_m: float | None = Field(default=None, description="prismatic joints: lower position limit, m (null: unlimited)")
-    upper_m: float | None = None
+    upper_m: float | None = Field(default=None, description="prismatic joints: upper position limit, m (null: unlimited)")
 
 
-class RobotOut(BaseModel):
-    id: str
-    name: str
-    preset: bool
-    n_joints: int
-    parameters: dict[str, Any] = Field(description="the parameter set (SI units; derived from the URDF for URDF robots)")
+class RobotOut(Output):
+    id: str = Field(description="the robot's id (`table1` for the paper's robot)")
+    name: str = Field(description="the robot's name")
+    preset: bool = Field(description="a preset shipped with the service (cannot be deleted)")
+    n_joints: int = Field(description="number of joints (and links)")
+    parameters: RobotParams = Field(
+        description="the parameter set, SI units, normalised (joint axes of unit length); derived from the URDF for URDF robots"
+    )
     joints: list[JointOut] = Field(default_factory=list, description="the joints in chain order, with their units and limits")
     notes: list[str] = Field(default_factory=list, description="what the service assumed, e.g. joints without limits")
-    created_at: datetime
+    created_at: datetime = Field(description="when it was stored (UTC)")
 
 
-class RobotList(BaseModel):
-    items: list[RobotOut]
-    total: int
+class RobotList(Output):
+    items: list[RobotOut] = Field(description="this page of robots, oldest first")
+    total: int = Field(description="number of robots stored")
 
 
 class JacobianRequest(Input):
+    """A state of the robot: its joint positions and the base pose."""
+
     joint_angles_deg: JointValues | None = Field(
         default=None, description="revolute joint angles, deg (null at prismatic joints)", examples=[list(PAPER_Q0_DEG)]
     )
@@ -231,14 +283,20 @@ class JacobianRequest(Input):
     base_attitude_quaternion: Quaternion | None = Field(default=None, description="base attitude [w, x, y, z] (default identity)")
 
 
-class JacobianOut(BaseModel):
+class JacobianOut(Output):
     gjm: list[list[float]] = Field(description="6 x n generalized Jacobian: joint rates (rad/s) to [v (m/s); w (rad/s)]")
-    singular_values: list[float]
-    determinant: float | None = Field(description="det of the GJM; null unless it is square")
-    manipulability: float
-    condition_number: float | None
-    ee_position_m: list[float]
-    ee_attitude_quaternion: list[float]
+    singular_values: list[float] = Field(
+        description="singular values of the GJM, descending (units of the GJM: m/rad for the linear rows, 1 for the angular)"
+    )
+    determinant: float | None = Field(description=f"det of the GJM, {DET_UNITS}; null unless it is square")
+    manipulability: float = Field(
+        description=f"the product of the singular values (sqrt(det(J J^T)) for 6 or more joints), {DET_UNITS}"
+    )
+    condition_number: float | None = Field(
+        description="largest over smallest singular value (dimensionless); null if the GJM is singular"
+    )
+    ee_position_m: list[float] = Field(description="end-effector position, m (world)")
+    ee_attitude_quaternion: list[float] = Field(description="end-effector attitude [w, x, y, z] (end effector -> world)")
 
 
 # --- tasks --------------------------------------------------------------------------------
@@ -289,7 +347,7 @@ class LinePathIn(Input):
     `target_attitude_quaternion`, the attitude rotating about one fixed axis; timed by the task's
     `duration_s` (default 15), `profile` and `ramp_time_s`."""
 
-    type: Literal["line"] = "line"
+    type: Literal["line"] = Field(default="line", description="the path type")
 
 
 class WaypointsPathIn(MoveLimits):
@@ -298,7 +356,7 @@ class WaypointsPathIn(MoveLimits):
     continuous velocity and acceleration). Timed by the limits, or by `segment_durations_s`;
     the task's `duration_s`, if given, rescales the whole path to it."""
 
-    type: Literal["waypoints"]
+    type: Literal["waypoints"] = Field(description="the path type")
     waypoints: list[PoseIn] = Field(min_length=1, max_length=MAX_WAYPOINTS, description="poses to visit, in order")
     segment_durations_s: list[Annotated[float, Field(gt=0, le=MAX_DURATION_S)]] | None = Field(
         default=None, description="s, one per waypoint (the segment that ends there); replaces the limits"
@@ -311,13 +369,13 @@ class ArcPathIn(Input):
     `via_position_m` and `end_position_m` (the circle through the start, via and end points).
     Timed like a line by the task's `duration_s` (default 15), `profile` and `ramp_time_s`."""
 
-    type: Literal["arc"]
+    type: Literal["arc"] = Field(description="the path type")
     centre_m: Point3 | None = Field(default=None, description="a point on the arc's axis, m")
     axis: Point3 | None = Field(default=None, description="direction of the arc's axis (normalised)")
     angle_deg: float | None = Field(default=None, ge=-360, le=360, description="turn about the axis, deg (right hand)")
     via_position_m: Point3 | None = Field(default=None, description="a point the arc passes through, m")
     end_position_m: Point3 | None = Field(default=None, description="where the arc ends, m")
-    attitude: Literal["tangent", "fixed"] = Field(
+    attitude: ArcAttitude = Field(
         default="tangent",
         description="`tangent`: the attitude turns with the arc (fixed relative to its tangent frame); `fixed`: held",
     )
@@ -332,7 +390,7 @@ class RasterPathIn(MoveLimits):
     ramps of `scan_acceleration_m_s2` at its ends, after a quintic approach (the limits) from the
     start pose. The task's `duration_s`, if given, rescales the whole path to it."""
 
-    type: Literal["raster"]
+    type: Literal["raster"] = Field(description="the path type")
     corner_m: Point3 = Field(description="a corner of the patch, m")
     scan_edge_m: Point3 = Field(description="edge vector the passes run along, m")
     step_edge_m: Point3 = Field(description="edge vector the passes step along (perpendicular to the scan edge), m")
@@ -361,7 +419,7 @@ class RasterPathIn(MoveLimits):
 
 PathIn = Annotated[LinePathIn | WaypointsPathIn | ArcPathIn | RasterPathIn, Field(discriminator="type")]
 PathType = Literal["line", "waypoints", "arc", "raster"]
-assert set(get_args(PathType)) == set(PATH_TYPES) and ARC_ATTITUDES == ("tangent", "fixed")
+assert set(get_args(PathType)) == set(PATH_TYPES)
 
 
 class TaskIn(Input):
@@ -377,7 +435,7 @@ class TaskIn(Input):
     q0_m: JointValues | None = Field(
         default=None, description="initial positions of the prismatic joints, m (null at revolute joints)"
     )
-    tracks: Literal["pose", "position"] = Field(
+    tracks: TrackedQuantity = Field(
         default="pose",
         description="what the plan follows: the whole `pose` (needs 6 joints or more) or the `position` only (3 or more)",
     )
@@ -397,7 +455,7 @@ class TaskIn(Input):
     )
     ramp_time_s: float = Field(default=1.5, ge=0, le=300, description="s, trapezoidal profile only; at most duration_s / 2")
     dt_s: float = Field(default=0.25, ge=MIN_DT_S, le=1, description="planner step, s; duration_s / dt_s at most 20,000 steps")
-    profile: Literal["trapezoidal", "quintic"] = Field(default="trapezoidal", description="time law of line and arc paths")
+    profile: TimeProfile = Field(default="trapezoidal", description="time law of line and arc paths")
     joint_speed_limit_deg_s: float = Field(
         default=6.0, gt=0, le=MAX_MAGNITUDE, description="symmetric speed limit of the revolute joints, deg/s"
     )
@@ -407,34 +465,168 @@ class TaskIn(Input):
     path: PathIn = Field(default_factory=LinePathIn, description="the path type and its parameters (default: line)")
 
 
-class TaskPreset(BaseModel):
-    name: str
-    description: str
-    robot_id: str
-    task: TaskIn
-    method: MethodIn | None = Field(default=None, description="the method and parameters the preset is meant to be planned with")
+class TaskPreset(Output):
+    """A named task, in the shape of the request fields it fills (`robot_id`, `task`, `method` of
+    a plan request)."""
+
+    name: str = Field(description="the preset's name (its id)")
+    description: str = Field(description="what the task is, for a person")
+    robot_id: str = Field(description="the stored robot the task is meant for")
+    task: TaskIn = Field(description="the task, ready to post")
+    method: MethodIn | None = Field(
+        default=None, description="the method and parameters the preset is meant to be planned with (null: any)"
+    )
 
 
-class TaskPresetList(BaseModel):
-    items: list[TaskPreset]
-    total: int
+class TaskPresetList(Output):
+    items: list[TaskPreset] = Field(description="every task preset")
+    total: int = Field(description="number of task presets")
 
 
-# --- plans --------------------------------------------------------------------------------
+# --- methods ------------------------------------------------------------------------------
+
+
+def _omitted_when_none(value: Any) -> bool:
+    return value is None
+
+
+def _without_default(schema: dict[str, Any]) -> None:
+    schema.pop("default", None)
+
+
+#: The units of the singular values of the GJM (which maps joint rates, rad/s, to [v (m/s); w
+#: (rad/s)]: m/rad on the linear rows, 1 on the angular rows) and of the damping parameters.
+SINGULAR_VALUE_UNITS = "in the units of the GJM's singular values"
+
+
+def _param_specs(name: str) -> list[tuple[str, ParamSpec]]:
+    """The methods that have a parameter ``name``, and its spec in each."""
+    return [(method, p) for method, spec in METHODS.items() for p in spec.params if p.name == name]
+
+
+def _method_param(name: str, meaning: str) -> Any:
+    """A method parameter: optional, never null (left out when not given), its valid range the
+    engine's (one range per name, whichever method uses it), its default per method."""
+    specs = _param_specs(name)
+    ranges = {(p.low, p.high, p.low_open) for _, p in specs}
+    assert len(ranges) == 1, f"{name}: one valid range for every method that uses it"
+    low, high, low_open = ranges.pop()
+    defaults = ", ".join(f"{p.default:g} ({method})" for method, p in specs)
+    return Field(
+        default=None,
+        alias=name,
+        gt=low if low_open else None,
+        ge=None if low_open else low,
+        le=high,
+        exclude_if=_omitted_when_none,
+        json_schema_extra=_without_default,
+        description=f"{meaning}; default {defaults}",
+    )
+
+
+def _param_bounds(name: str, unit: str) -> Any:
+    """The GA's search interval of a method parameter: optional, never null."""
+    defaults = ", ".join(f"[{p.tune_bounds[0]:g}, {p.tune_bounds[1]:g}] ({method})" for method, p in _param_specs(name))
+    return Field(
+        default=None,
+        alias=name,
+        exclude_if=_omitted_when_none,
+        json_schema_extra=_without_default,
+        description=f"[lo, hi] of `{name}`, {unit}, lo < hi within its valid range; default {defaults}",
+    )
+
+
+#: Parameter sets by their API names. A name no method has is refused by the document
+#: (``additionalProperties: false``) but let through validation here: the engine's check then
+#: names the parameters of the method chosen (``valid: lambda_max, epsilon``), which a schema
+#: error ("extra inputs are not permitted") could not.
+PARAMETER_NAMES_CONFIG = ConfigDict(
+    serialize_by_alias=True,
+    validate_by_alias=True,
+    validate_by_name=False,
+    extra="allow",
+    json_schema_extra={"additionalProperties": False},
+)
+
+
+class MethodParams(Input):
+    """Parameters of the robust inverse; give only those of the method named (each method's
+    own: `dls`: `lambda`; `adaptive` and `wdls`: `lambda_max`, `epsilon`; `sdls`: `gamma_max`;
+    `svf`: `sigma0`, `nu`; `inverse`: none). Missing ones take the method's defaults; a parameter
+    of another method is a 422 naming it. Damping and singular-value thresholds are in the units
+    of the GJM's singular values (the GJM maps joint rates in rad/s to [v (m/s); w (rad/s)])."""
+
+    model_config = PARAMETER_NAMES_CONFIG
+
+    lambda_: float = _method_param("lambda", f"dls: the constant damping lambda, {SINGULAR_VALUE_UNITS}")
+    lambda_max: float = _method_param(
+        "lambda_max", f"adaptive, wdls: the largest damping lambda_max (at a zero singular value), {SINGULAR_VALUE_UNITS}"
+    )
+    epsilon: float = _method_param(
+        "epsilon", f"adaptive, wdls: the singular value epsilon below which damping starts, {SINGULAR_VALUE_UNITS}"
+    )
+    gamma_max: float = _method_param("gamma_max", "sdls: the largest joint rate gamma_max, rad/s")
+    sigma0: float = _method_param("sigma0", f"svf: the smallest filtered singular value sigma_0, {SINGULAR_VALUE_UNITS}")
+    nu: float = _method_param("nu", "svf: the shape factor nu of the filter (dimensionless)")
+
+    def given(self) -> dict[str, float]:
+        """The parameters given, by their API names."""
+        return self.model_dump(exclude_none=True)
+
+
+Interval = Annotated[list[Magnitude], Field(min_length=2, max_length=2)]
+
+
+class MethodBounds(Input):
+    """Search intervals of the GA, per parameter of the tuned method (the names of
+    `MethodParams`); missing parameters take the default bounds, a parameter of another method
+    is a 422 naming it."""
+
+    model_config = PARAMETER_NAMES_CONFIG
+
+    lambda_: Interval = _param_bounds("lambda", SINGULAR_VALUE_UNITS)
+    lambda_max: Interval = _param_bounds("lambda_max", SINGULAR_VALUE_UNITS)
+    epsilon: Interval = _param_bounds("epsilon", SINGULAR_VALUE_UNITS)
+    gamma_max: Interval = _param_bounds("gamma_max", "rad/s")
+    sigma0: Interval = _param_bounds("sigma0", SINGULAR_VALUE_UNITS)
+    nu: Interval = _param_bounds("nu", "dimensionless")
+
+    def given(self) -> dict[str, list[float]]:
+        """The intervals given, by their API names."""
+        return self.model_dump(exclude_none=True)
+
+
+_PARAM_NAMES = {p.name for spec in METHODS.values() for p in spec.params}
+for _model in (MethodParams, MethodBounds):
+    assert {f.alias or name for name, f in _model.model_fields.items()} == _PARAM_NAMES, _model
 
 
 class MethodIn(Input):
-    name: str = Field(default="adaptive", max_length=40, description="inverse: inverse, dls, adaptive, wdls, sdls, svf")
-    params: dict[Annotated[str, Field(max_length=40)], Magnitude] = Field(
-        default_factory=dict, max_length=4, description="method parameters; missing ones take defaults"
+    """A robust inverse of the GJM and its parameters."""
+
+    name: MethodName = Field(
+        default="adaptive",
+        description="`inverse` (plain, paper eq. 3), `dls` (constant damping, eq. 6), `adaptive` (the paper's "
+        "per-singular-value damping, eq. 16), `wdls` (damping from the smallest singular value), `sdls` (selectively "
+        "damped, Buss and Kim 2005), `svf` (singular value filtering, Colome and Torras 2015)",
     )
+    params: MethodParams = Field(
+        default_factory=MethodParams, description="the method's parameters; missing ones take the method's defaults"
+    )
+
+
+class MethodOut(Output):
+    """The robust inverse a plan used, with every parameter of the method (defaults filled in)."""
+
+    name: MethodName = Field(description="the method")
+    params: MethodParams = Field(description="the method's parameters, every one of them")
 
 
 class SecondaryIn(Input):
     """A secondary objective in the null space of a redundant arm (more joints than the task
     tracks: 7+ for a pose, 4+ for a position)."""
 
-    objective: Literal["min_base_rotation", "joint_centering"] = Field(
+    objective: SecondaryObjective = Field(
         description="`min_base_rotation`: keep the carrier's attitude still (reaction null space); "
         "`joint_centering`: pull the joints towards the middle of their limits"
     )
@@ -442,11 +634,15 @@ class SecondaryIn(Input):
         default=None,
         ge=0,
         le=MAX_CENTERING_GAIN,
-        description="min_base_rotation: in [0, 1] (1 = the full minimiser, default 1); joint_centering: 1/s (default 0.5)",
+        description="min_base_rotation: in [0, 1], dimensionless (1 = the full minimiser, default 1); joint_centering: 1/s "
+        "(default 0.5)",
     )
 
 
 TaskPreset.model_rebuild()
+
+
+# --- plans --------------------------------------------------------------------------------
 
 
 #: Vendor key of the schemas whose ``robot_id`` and ``robot`` are exclusive (see OneRobot).
@@ -503,94 +699,168 @@ class PlanRequest(OneRobot):
         default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
     )
     robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
-    task: TaskIn
-    method: MethodIn = Field(default_factory=MethodIn)
+    task: TaskIn = Field(description="the Cartesian task")
+    method: MethodIn = Field(default_factory=MethodIn, description="the robust inverse (default: adaptive damping)")
     feedback_gain: float = Field(
         default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback added to the path twist"
     )
-    aggregation: AggregationName = "max"
+    aggregation: AggregationName = Field(default="max", description=AGGREGATION_DESCRIPTION)
     weights: Weights = [0.5, 0.5]
     attitude_term: AttitudeTerm = "eq18"
     replay: bool = Field(default=True, description="re-integrate the plan with solve_ivp and report the gaps")
     secondary: SecondaryIn | None = Field(default=None, description="a null-space objective for a redundant arm")
 
 
-class PlanMetrics(BaseModel):
-    objective_b: float | None = Field(description="objective B (m + rad weighted); null when the speed limit is broken")
-    position_error_max_m: float | None
-    position_error_rms_m: float | None
-    position_error_final_m: float | None
-    attitude_error_max_rad: float | None
-    attitude_error_rms_rad: float | None
-    attitude_error_final_rad: float | None
-    coupled_error_max_m_rad: float | None = Field(default=None, description="eq. 18 as printed: sqrt(sum (dp_i dphi_i)^2)")
-    coupled_error_rms_m_rad: float | None = None
-    coupled_error_final_m_rad: float | None = None
+#: Null in a number of a response: not finite (the plan diverged) or not applicable.
+NULL_NOT_FINITE = "null if not finite"
+
+
+class PlanMetrics(Output):
+    """What a plan achieved: errors along the path (world frame, against the desired pose of
+    each sample), joint speeds and the closest approach to a singularity."""
+
+    objective_b: float | None = Field(
+        description="objective B = w1 * position term (m) + w2 * attitude term (rad, or m rad with `eq18`), with the "
+        "plan's aggregation; null when the joint speed limit is broken"
+    )
+    position_error_max_m: float | None = Field(description=f"largest end-effector position error, m; {NULL_NOT_FINITE}")
+    position_error_rms_m: float | None = Field(description=f"root mean square position error, m; {NULL_NOT_FINITE}")
+    position_error_final_m: float | None = Field(description=f"position error at the end, m; {NULL_NOT_FINITE}")
+    attitude_error_max_rad: float | None = Field(description=f"largest attitude error (rotation angle), rad; {NULL_NOT_FINITE}")
+    attitude_error_rms_rad: float | None = Field(description=f"root mean square attitude error, rad; {NULL_NOT_FINITE}")
+    attitude_error_final_rad: float | None = Field(description=f"attitude error at the end, rad; {NULL_NOT_FINITE}")
+    coupled_error_max_m_rad: float | None = Field(
+        default=None, description="eq. 18 as printed, sqrt(sum (dp_i dphi_i)^2), largest, m rad; null if not finite"
+    )
+    coupled_error_rms_m_rad: float | None = Field(default=None, description="eq. 18 as printed, root mean square, m rad")
+    coupled_error_final_m_rad: float | None = Field(default=None, description="eq. 18 as printed, at the end, m rad")
     attitude_term: AttitudeTermName = Field(
         default="angle", description="the attitude term B was formed with (plans stored before it was recorded: `angle`)"
     )
-    max_joint_speed_deg_s: float | None
-    joint_speed_limit_deg_s: float | None = None
-    joint_speed_limit_respected: bool
-    min_singular_value: float | None
-    time_of_min_singular_value_s: float | None
-    min_abs_det_gjm: float | None = Field(description="of the tracked rows of the GJM when they are square; else null")
-    time_of_min_abs_det_gjm_s: float | None
-    tracks: Literal["pose", "position"] = "pose"
-    max_linear_joint_speed_m_s: float | None = Field(default=None, description="prismatic joints (0 without any)")
-    joint_speed_limit_m_s: float | None = None
-    position_limits_respected: bool | None = None
-    position_limit_joint: int | None = Field(default=None, description="the first joint (1-based) found outside its limits")
-    time_position_limit_left_s: float | None = None
-    base_attitude_change_max_rad: float | None = Field(default=None, description="the carrier's largest rotation from its start")
-    base_attitude_change_final_rad: float | None = None
-
-
-class Trajectory(BaseModel):
-    t_s: list[float]
-    joint_angles_deg: list[list[float | None]] = Field(description="revolute joints, deg (null in prismatic columns)")
-    joint_velocities_deg_s: list[list[float | None]]
-    joint_displacements_m: list[list[float | None]] | None = Field(
-        default=None, description="prismatic joints, m (null in revolute columns); only for robots with prismatic joints"
+    max_joint_speed_deg_s: float | None = Field(description=f"largest speed of any revolute joint, deg/s; {NULL_NOT_FINITE}")
+    joint_speed_limit_deg_s: float | None = Field(default=None, description="the task's revolute joint speed limit, deg/s")
+    joint_speed_limit_respected: bool = Field(description="every joint within its speed limit at every sample")
+    min_singular_value: float | None = Field(
+        description=f"smallest singular value of the GJM along the plan, {SINGULAR_VALUE_UNITS}; {NULL_NOT_FINITE}"
     )
-    joint_velocities_m_s: list[list[float | None]] | None = None
-    base_position_m: list[list[float | None]]
-    base_attitude_quaternion: list[list[float | None]]
-    ee_position_m: list[list[float | None]]
-    ee_position_desired_m: list[list[float | None]]
-    ee_attitude_quaternion: list[list[float | None]]
-    ee_attitude_desired_quaternion: list[list[float | None]]
-    singular_values: list[list[float | None]]
-    det_gjm: list[float | None]
-    damping: list[list[float | None]]
-    position_error_m: list[float | None]
-    attitude_error_rad: list[float | None]
+    time_of_min_singular_value_s: float | None = Field(description="when the smallest singular value occurred, s")
+    min_abs_det_gjm: float | None = Field(
+        description=f"smallest |det| of the tracked rows of the GJM along the plan, {DET_UNITS} for a pose task; null "
+        "unless they are square, or if not finite"
+    )
+    time_of_min_abs_det_gjm_s: float | None = Field(description="when the smallest |det| occurred, s")
+    tracks: TrackedQuantity = Field(default="pose", description="what the plan followed: the whole `pose` or the `position`")
+    max_linear_joint_speed_m_s: float | None = Field(
+        default=None, description=f"largest speed of any prismatic joint, m/s (0 without any); {NULL_NOT_FINITE}"
+    )
+    joint_speed_limit_m_s: float | None = Field(
+        default=None, description="the task's prismatic joint speed limit, m/s; null: none"
+    )
+    position_limits_respected: bool | None = Field(
+        default=None,
+        description="every joint within its position limits at every sample (null: a plan stored before limits were checked)",
+    )
+    position_limit_joint: int | None = Field(
+        default=None, description="the first joint (1-based index) found outside its limits; null if none"
+    )
+    time_position_limit_left_s: float | None = Field(default=None, description="when that joint left its limits, s; null if none")
+    base_attitude_change_max_rad: float | None = Field(
+        default=None, description=f"the carrier's largest rotation from its start, rad; {NULL_NOT_FINITE}"
+    )
+    base_attitude_change_final_rad: float | None = Field(
+        default=None, description=f"the carrier's rotation from its start at the end, rad; {NULL_NOT_FINITE}"
+    )
 
 
-class ReplayOut(BaseModel):
-    success: bool
-    message: str
-    path_position_error_max_m: float | None
-    path_position_error_final_m: float | None
-    path_attitude_error_max_rad: float | None
-    path_attitude_error_final_rad: float | None
-    plan_gap_position_max_m: float | None
-    plan_gap_attitude_max_rad: float | None
-    base_attitude_gap_max_rad: float | None
-    linear_momentum_residual_max_n_s: float | None
-    angular_momentum_residual_max_n_m_s: float | None
-    com_drift_max_m: float | None
+#: Trajectory arrays are time-major: one row per sample of `t_s`; null where a value is not finite.
+PER_SAMPLE = "one row per sample of `t_s`"
 
 
-class PlanSummary(BaseModel):
-    id: str
-    robot_id: str | None
-    method: dict[str, Any]
-    success: bool
-    message: str
-    metrics: PlanMetrics
-    elapsed_s: float
-    created_at: datetime
+def _not_required(*names: str) -> Callable[[dict[str, Any]], None]:
+    """A ``json_schema_extra`` for an :class:`Output` whose fields ``names`` may be left out."""
+
+    def drop(schema: dict[str, Any]) -> None:
+        schema["required"] = [name for name in schema.get("required", []) if name not in names]
+
+    return drop
+
+
+class Trajectory(Output):
+    """Every sample of a plan, time-major (one row per sample of `t_s`); null where a value is not
+    finite (a diverged plan). Joint columns follow the robot's joints: revolute joints in the
+    `_deg` arrays, prismatic ones in the `_m` arrays (null in the other's columns)."""
+
+    model_config = ConfigDict(json_schema_extra=_not_required("joint_displacements_m", "joint_velocities_m_s"))
+
+    t_s: list[float] = Field(description="sample times, s")
+    joint_angles_deg: list[list[float | None]] = Field(
+        description=f"joint angles, deg; {PER_SAMPLE}, one column per joint (null in prismatic columns)"
+    )
+    joint_velocities_deg_s: list[list[float | None]] = Field(
+        description=f"joint rates, deg/s; {PER_SAMPLE}, one column per joint (null in prismatic columns)"
+    )
+    joint_displacements_m: list[list[float | None]] | None = Field(
+        default=None,
+        description=f"prismatic joint positions, m; {PER_SAMPLE} (null in revolute columns); only for robots with "
+        "prismatic joints (left out otherwise)",
+    )
+    joint_velocities_m_s: list[list[float | None]] | None = Field(
+        default=None,
+        description=f"prismatic joint rates, m/s; {PER_SAMPLE} (null in revolute columns); only for robots with "
+        "prismatic joints (left out otherwise)",
+    )
+    base_position_m: list[list[float | None]] = Field(description=f"base CoM position in world, m; {PER_SAMPLE}, [x, y, z]")
+    base_attitude_quaternion: list[list[float | None]] = Field(
+        description=f"base attitude [w, x, y, z] (base -> world); {PER_SAMPLE}"
+    )
+    ee_position_m: list[list[float | None]] = Field(description=f"end-effector position in world, m; {PER_SAMPLE}")
+    ee_position_desired_m: list[list[float | None]] = Field(description=f"the path's position, m; {PER_SAMPLE}")
+    ee_attitude_quaternion: list[list[float | None]] = Field(
+        description=f"end-effector attitude [w, x, y, z] (end effector -> world); {PER_SAMPLE}"
+    )
+    ee_attitude_desired_quaternion: list[list[float | None]] = Field(
+        description=f"the path's attitude [w, x, y, z]; {PER_SAMPLE}"
+    )
+    singular_values: list[list[float | None]] = Field(
+        description=f"singular values of the GJM, descending, {SINGULAR_VALUE_UNITS}; {PER_SAMPLE}"
+    )
+    det_gjm: list[float | None] = Field(description=f"det of the GJM per sample, {DET_UNITS} (6 joints; null otherwise)")
+    damping: list[list[float | None]] = Field(
+        description=f"effective damping per singular direction, {SINGULAR_VALUE_UNITS} (0: undamped); {PER_SAMPLE}"
+    )
+    position_error_m: list[float | None] = Field(description="end-effector position error per sample, m")
+    attitude_error_rad: list[float | None] = Field(description="end-effector attitude error (rotation angle) per sample, rad")
+
+
+class ReplayOut(Output):
+    """The independent replay: the plan's joint rates re-integrated through the momentum equations
+    (DOP853), compared with the path and with the plan; null where not finite or not replayed."""
+
+    success: bool = Field(description="the replay stays on the path and conserves momentum within the tolerances")
+    message: str = Field(description="the verdict, for a person (or why the plan was not replayed)")
+    path_position_error_max_m: float | None = Field(description="largest position error of the replay against the path, m")
+    path_position_error_final_m: float | None = Field(description="position error of the replay at the end, m")
+    path_attitude_error_max_rad: float | None = Field(description="largest attitude error of the replay against the path, rad")
+    path_attitude_error_final_rad: float | None = Field(description="attitude error of the replay at the end, rad")
+    plan_gap_position_max_m: float | None = Field(description="largest end-effector position gap, replay versus plan, m")
+    plan_gap_attitude_max_rad: float | None = Field(description="largest end-effector attitude gap, replay versus plan, rad")
+    base_attitude_gap_max_rad: float | None = Field(description="largest base attitude gap, replay versus plan, rad")
+    linear_momentum_residual_max_n_s: float | None = Field(description="largest linear momentum of the system, N s (ideally 0)")
+    angular_momentum_residual_max_n_m_s: float | None = Field(
+        description="largest angular momentum of the system, N m s (ideally 0)"
+    )
+    com_drift_max_m: float | None = Field(description="largest drift of the system's centre of mass, m (ideally 0)")
+
+
+class PlanSummary(Output):
+    id: str = Field(description="the plan's id (32 hex digits)")
+    robot_id: str | None = Field(description="the stored robot planned for; null for an inline robot")
+    method: MethodOut = Field(description="the robust inverse used, every parameter filled in")
+    success: bool = Field(description="the plan is finite, within the joint speed limit, on the path and at the target")
+    message: str = Field(description="the verdict, for a person (where and why a plan failed)")
+    metrics: PlanMetrics = Field(description="what the plan achieved")
+    elapsed_s: float = Field(description="time spent planning (and replaying), s")
+    created_at: datetime = Field(description="when it was stored (UTC)")
 
 
 PLAN_SECTIONS = ("trajectory", "replay")
@@ -599,15 +869,18 @@ PLAN_SECTIONS = ("trajectory", "replay")
 class PlanOut(PlanSummary):
     """A plan: the summary, and the sections asked for with ``fields`` (all by default)."""
 
+    # the sections are left out unless asked for: not required
+    model_config = ConfigDict(json_schema_extra=_not_required("trajectory", "replay"))
+
     trajectory: Trajectory | None = Field(
         default=None, description="every sample of the plan (left out when `fields` does not name it)"
     )
     replay: ReplayOut | None = Field(default=None, description="the independent replay's checks; null if not replayed")
 
 
-class PlanList(BaseModel):
-    items: list[PlanSummary]
-    total: int
+class PlanList(Output):
+    items: list[PlanSummary] = Field(description="this page of plans (without trajectories), newest first")
+    total: int = Field(description="number of plans stored")
 
 
 # --- shortest feasible duration -----------------------------------------------------------
@@ -618,8 +891,8 @@ class DurationSearchSettings(Input):
         default=DEFAULT_RELATIVE_TOLERANCE,
         gt=0,
         le=0.01,
-        description="the search stops when the shortest feasible duration found is within this fraction of the longest "
-        "infeasible one below it (the boundary lies between them)",
+        description="the search stops when the shortest feasible duration found is within this fraction "
+        "(dimensionless) of the longest infeasible one below it (the boundary lies between them)",
     )
     candidates: int = Field(default=4, ge=1, le=16, description="durations planned per bisection round (in parallel)")
     max_duration_s: float | None = Field(
@@ -646,39 +919,43 @@ class ShortestDurationRequest(PlanRequest):
         },
     )
 
-    search: DurationSearchSettings = Field(default_factory=DurationSearchSettings)
+    search: DurationSearchSettings = Field(default_factory=DurationSearchSettings, description="how the duration is searched")
 
 
-class DurationSearchOut(BaseModel):
+class DurationSearchOut(Output):
     success: bool = Field(description="a feasible duration was found (false: none up to the longest duration tried)")
-    message: str
+    message: str = Field(description="the search's verdict, for a person")
     duration_s: float = Field(description="the shortest feasible duration found, the plan's (the longest tried if none)")
     infeasible_duration_s: float | None = Field(
         description="the longest infeasible duration found below it, s (null if even one step was feasible)"
     )
-    relative_gap: float | None = Field(description="duration_s / infeasible_duration_s - 1: where the boundary may lie")
+    relative_gap: float | None = Field(
+        description="duration_s / infeasible_duration_s - 1 (dimensionless): where the boundary may lie"
+    )
     joint_speed_margin_deg_s: float | None = Field(description="joint speed limit minus the plan's peak joint speed, deg/s")
     limiting: str = Field(description="what fails at infeasible_duration_s (the plan verdict there)")
     evaluations: int = Field(description="metrics-only plans run by the search")
-    rounds: int
+    rounds: int = Field(description="bisection rounds run")
 
 
-class ShortestDurationOut(BaseModel):
-    search: DurationSearchOut
+class ShortestDurationOut(Output):
+    search: DurationSearchOut = Field(description="the search: the duration found and how close it is to the boundary")
     plan: PlanOut = Field(description="the stored plan at duration_s (its request carries that duration)")
 
 
 # --- tuning jobs --------------------------------------------------------------------------
 
-JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
-
 
 class GASettings(Input):
-    population: int = Field(default=40, ge=2, le=MAX_POPULATION)
-    generations: int = Field(default=50, ge=1, le=MAX_GENERATIONS)
-    crossover_probability: float = Field(default=0.8, ge=0, le=1)
+    """The paper's binary-coded genetic algorithm (DEAP)."""
+
+    population: int = Field(default=40, ge=2, le=MAX_POPULATION, description="individuals per generation")
+    generations: int = Field(default=50, ge=1, le=MAX_GENERATIONS, description="generations after the initial population")
+    crossover_probability: float = Field(default=0.8, ge=0, le=1, description="probability that a pair is crossed over")
     mutation_probability: float = Field(default=0.02, ge=0, le=1, description="per-bit flip probability")
-    bits_per_gene: int = Field(default=16, ge=2, le=MAX_BITS_PER_GENE)
+    bits_per_gene: int = Field(
+        default=16, ge=2, le=MAX_BITS_PER_GENE, description="bits coding each parameter over its search interval"
+    )
     elitism: int = Field(default=1, ge=0, description="best individuals kept unchanged; < population")
     seed: int | None = Field(default=0, ge=0, le=2**63 - 1, description="null for a random seed")
 
@@ -692,10 +969,14 @@ class GASettings(Input):
 
 
 class ObjectiveSettings(Input):
+    """The objective B the GA minimises (paper eq. 18), per task, then over the tasks."""
+
     weights: Weights = [0.5, 0.5]
-    aggregation: AggregationName = "max"
+    aggregation: AggregationName = Field(default="max", description=AGGREGATION_DESCRIPTION)
     attitude_term: AttitudeTerm = "eq18"
-    task_aggregation: Literal["mean", "max"] = "mean"
+    task_aggregation: TaskAggregationName = Field(
+        default="mean", description="how the tasks' B combine: `mean` or `max` (the worst task)"
+    )
 
 
 class TuningJobRequest(OneRobot):
@@ -729,48 +1010,52 @@ class TuningJobRequest(OneRobot):
         default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
     )
     robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
-    tasks: list[TaskIn] = Field(min_length=1, max_length=20)
-    method: str = Field(default="adaptive", max_length=40, description="the inverse to tune (a method with parameters)")
-    bounds: dict[Annotated[str, Field(max_length=40)], Annotated[list[Magnitude], Field(min_length=2, max_length=2)]] | None = (
-        Field(None, max_length=4, description="search interval [lo, hi] per parameter; missing parameters take default bounds")
+    tasks: list[TaskIn] = Field(min_length=1, max_length=20, description="the tasks B is evaluated on")
+    method: TunableMethodName = Field(default="adaptive", description="the inverse to tune (a method with parameters)")
+    bounds: MethodBounds | None = Field(
+        default=None, description="search interval [lo, hi] per parameter; missing parameters take the default bounds"
     )
-    ga: GASettings = Field(default_factory=GASettings)
-    objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings)
+    ga: GASettings = Field(default_factory=GASettings, description="the genetic algorithm's settings")
+    objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings, description="the objective B")
     feedback_gain: float = Field(default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback")
     compare_with_dls: bool = Field(default=True, description="also tune constant-damping DLS with the same GA settings")
 
 
-class HistoryRecord(BaseModel):
-    generation: int = Field(description="0 is the initial population")
+class HistoryRecord(Output):
+    generation: int = Field(description="the generation (0: the initial population)")
     best: float | None = Field(description="best objective B so far (null while nothing is feasible)")
     mean: float | None = Field(description="mean B of this generation's feasible individuals (null if none)")
-    feasible: int = Field(description="feasible individuals in this generation")
+    feasible: int = Field(description="feasible individuals in this generation (within the joint speed limit)")
 
 
-PhaseRole = Literal["tuned", "dls_baseline"]
+PhaseRole = TypeAliasType("PhaseRole", Literal["tuned", "dls_baseline"])
+PhaseName = TypeAliasType("PhaseName", Literal["dls", "adaptive", "wdls", "sdls", "svf", "done"])
+assert list(get_args(PhaseName.__value__)) == [*get_args(TunableMethodName.__value__), "done"]
 
 
-class JobPhase(BaseModel):
+class JobPhase(Output):
     """One GA run of a job: the tuned method, then (with ``compare_with_dls``) the DLS baseline."""
 
-    name: str = Field(description="the method this GA tunes")
+    name: TunableMethodName = Field(description="the method this GA tunes")
     role: PhaseRole = Field(description="`tuned` (the job's method) or `dls_baseline`")
     generations: int = Field(description="generations of this GA (after the initial population)")
     completed: int = Field(description="generations of this GA finished so far (0 to `generations`)")
     history: list[HistoryRecord] = Field(description="one record per finished generation, from the initial population (0)")
 
 
-class JobProgress(BaseModel):
+class JobProgress(Output):
     generation: int = Field(default=0, description="generations finished, summed over the phases")
     generations: int = Field(default=0, description="generations of the whole job, summed over the phases")
     evaluations: int = Field(default=0, description="plans run so far (repeated genomes are not planned again)")
     best_objective_b: float | None = Field(default=None, description="best B of the running phase so far")
-    best_params: dict[str, float] | None = Field(default=None, description="parameters of that best B")
-    phase: str | None = Field(default=None, description="the running phase's method, `done` once finished")
+    best_params: MethodParams | None = Field(default=None, description="parameters of that best B (null before the first)")
+    phase: PhaseName | None = Field(
+        default=None, description="the running phase's method, `done` once finished; null while queued"
+    )
     phases: list[JobPhase] = Field(default_factory=list, description="each GA of the job with its history")
 
 
-class JobLinks(BaseModel):
+class JobLinks(Output):
     model_config = ConfigDict(populate_by_name=True)
 
     self_: str = Field(alias="self", description="this job")
@@ -779,70 +1064,85 @@ class JobLinks(BaseModel):
     convergence_figure: str = Field(description="its convergence figure (paper Fig. 7), SVG; `?format=png` for PNG")
 
 
-class TuningJobOut(BaseModel):
-    id: str
-    status: JobStatus
-    robot_id: str | None
-    method: str
-    progress: JobProgress
-    attempts: int
-    max_attempts: int
-    cancel_requested: bool
-    error: str | None
-    created_at: datetime
-    started_at: datetime | None
-    finished_at: datetime | None
-    links: JobLinks
+class TuningJobOut(Output):
+    id: str = Field(description="the job's id (32 hex digits)")
+    status: JobStatus = Field(description="queued, then running, then succeeded, failed or cancelled")
+    robot_id: str | None = Field(description="the stored robot tuned for; null for an inline robot")
+    method: TunableMethodName = Field(description="the method being tuned")
+    progress: JobProgress = Field(description="how far the GA is")
+    attempts: int = Field(description="times a worker claimed the job")
+    max_attempts: int = Field(description="claims before the job is failed for good")
+    cancel_requested: bool = Field(description="a cancellation was asked for")
+    error: str | None = Field(description="why the job failed; null otherwise")
+    created_at: datetime = Field(description="when it was submitted (UTC)")
+    started_at: datetime | None = Field(description="when a worker last claimed it (UTC); null while queued")
+    finished_at: datetime | None = Field(description="when it ended (UTC); null until then")
+    links: JobLinks = Field(description="where the job's result, events and figure are")
 
 
-class TuningJobList(BaseModel):
-    items: list[TuningJobOut]
-    total: int
+class TuningJobList(Output):
+    items: list[TuningJobOut] = Field(description="this page of jobs, newest first")
+    total: int = Field(description="number of jobs (with the status asked for)")
 
 
-class DLSBaseline(BaseModel):
-    lambda_: float | None = Field(alias="lambda", serialization_alias="lambda")
-    objective_b: float | None
+class DLSBaseline(Output):
+    lambda_: float | None = Field(
+        alias="lambda", serialization_alias="lambda", description=f"the tuned DLS damping, {SINGULAR_VALUE_UNITS}"
+    )
+    objective_b: float | None = Field(description="B of the tuned DLS")
     warnings: list[str] = Field(default_factory=list, description="e.g. the tuned lambda on a search bound")
 
     model_config = ConfigDict(populate_by_name=True)
 
 
-class TuningJobResult(BaseModel):
-    best_params: dict[str, float]
-    best_objective_b: float | None
+class TuningJobResult(Output):
+    best_params: MethodParams = Field(description="the tuned parameters (those of the method)")
+    best_objective_b: float | None = Field(description="their B; null if no individual was feasible")
     best_metrics: list[PlanMetrics] = Field(description="metrics of the best parameters, one per task")
-    history: list[HistoryRecord]
-    evaluations: int
-    elapsed_s: float
-    dls_baseline: DLSBaseline | None
-    improvement_over_dls_percent: float | None
+    history: list[HistoryRecord] = Field(description="one row per generation of the tuned method")
+    evaluations: int = Field(description="plans evaluated")
+    elapsed_s: float = Field(description="time the GA took, s")
+    dls_baseline: DLSBaseline | None = Field(description="DLS tuned with the same GA settings; null without `compare_with_dls`")
+    improvement_over_dls_percent: float | None = Field(
+        description="how much lower B is than the tuned DLS's, percent; null without a baseline"
+    )
     warnings: list[str] = Field(
         default_factory=list,
         description="e.g. a tuned parameter on a search bound, where the optimum may lie beyond it: widen that bound",
     )
 
 
+HealthStatus = TypeAliasType("HealthStatus", Literal["ok", "unavailable"])
+
+
 class Health(BaseModel):
-    status: str
+    """Liveness or readiness; the fields other than `status` are left out where they do not apply."""
+
+    status: HealthStatus = Field(description="`ok`, or `unavailable` (readiness: see the other fields)")
     kernels: str | None = Field(default=None, description="the engine's compiled kernels: loading, ok or failed: ...")
-    database: str | None = None
-    revision: str | None = None
-    head: str | None = None
+    database: str | None = Field(default=None, description="the database: ok, or what is wrong with it")
+    revision: str | None = Field(default=None, description="the database's Alembic revision")
+    head: str | None = Field(default=None, description="the Alembic revision this version of the service needs")
 
 
 # --- objective landscapes
 
 #: Methods with (at least) two parameters to span a landscape.
-LandscapeMethod = Literal["adaptive", "wdls", "svf"]
+LandscapeMethod = TypeAliasType("LandscapeMethod", Literal["adaptive", "wdls", "svf"])
+assert list(get_args(LandscapeMethod.__value__)) == [name for name, spec in METHODS.items() if len(spec.params) >= 2]
+ParamName = TypeAliasType("ParamName", Literal["lambda", "lambda_max", "epsilon", "gamma_max", "sigma0", "nu"])
+assert set(get_args(ParamName.__value__)) == _PARAM_NAMES
+AxisScale = TypeAliasType("AxisScale", Literal["linear", "log"])
 
 
 class LandscapeAxis(Input):
-    name: str = Field(max_length=40, description="a parameter of the method, e.g. `lambda_max` or `epsilon`")
-    min: Magnitude = Field(description="first value (in the parameter's unit; > 0 on a log axis)")
-    max: Magnitude = Field(description="last value (> min)")
+    """One axis of the grid: a parameter of the method and its values."""
+
+    name: ParamName = Field(description="a parameter of the method, e.g. `lambda_max` or `epsilon` (see `MethodParams`)")
+    min: Magnitude = Field(description="first value, in the parameter's unit (see `MethodParams`); > 0 on a log axis")
+    max: Magnitude = Field(description="last value, in the parameter's unit (> min)")
     steps: int = Field(default=32, ge=2, le=128, description="values from min to max inclusive")
-    scale: Literal["linear", "log"] = Field(default="linear", description="spacing of the values")
+    scale: AxisScale = Field(default="linear", description="spacing of the values: `linear` or `log` (even in the logarithm)")
 
 
 class LandscapeRequest(OneRobot):
@@ -870,10 +1170,10 @@ class LandscapeRequest(OneRobot):
     method: LandscapeMethod = Field(default="adaptive", description="a method with two parameters or more")
     x: LandscapeAxis = Field(description="the parameter along the grid's rows (first index)")
     y: LandscapeAxis = Field(description="the parameter along the grid's columns (second index)")
-    fixed: dict[Annotated[str, Field(max_length=40)], Magnitude] | None = Field(
-        default=None, max_length=4, description="the method's other parameters (default: their defaults)"
+    fixed: MethodParams | None = Field(
+        default=None, description="the method's other parameters (default: their defaults); not those of the axes"
     )
-    objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings)
+    objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings, description="the objective B")
     feedback_gain: float = Field(default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback")
     tuning_job_id: str = Field(  # type: ignore[assignment]
         default=None,
@@ -883,43 +1183,43 @@ class LandscapeRequest(OneRobot):
     )
 
 
-class LandscapeAxisOut(BaseModel):
-    name: str
-    values: list[float] = Field(description="the parameter's values along this axis")
-    scale: Literal["linear", "log"]
+class LandscapeAxisOut(Output):
+    name: ParamName = Field(description="the parameter along this axis")
+    values: list[float] = Field(description="the parameter's values along this axis, in its unit (see `MethodParams`)")
+    scale: AxisScale = Field(description="spacing of the values")
 
 
-class LandscapeMarks(BaseModel):
-    tuning_job_id: str
-    ga_optimum: dict[str, float] = Field(description="the job's tuned parameters")
+class LandscapeMarks(Output):
+    tuning_job_id: str = Field(description="the tuning job marked on the heatmap")
+    ga_optimum: MethodParams = Field(description="the job's tuned parameters")
     ga_objective_b: float | None = Field(description="the job's tuned B")
     dls_objective_b: float | None = Field(description="B of the job's tuned DLS baseline (null without one)")
 
 
-class LandscapeLinks(BaseModel):
+class LandscapeLinks(Output):
     model_config = ConfigDict(populate_by_name=True)
 
     self_: str = Field(alias="self", description="this landscape")
     heatmap: str = Field(description="its heatmap figure, SVG; `?format=png` for PNG")
 
 
-class LandscapeOut(BaseModel):
-    id: str
-    robot_id: str | None
-    method: str
-    x: LandscapeAxisOut
-    y: LandscapeAxisOut
-    fixed: dict[str, float] = Field(description="the method's other parameters")
+class LandscapeOut(Output):
+    id: str = Field(description="the landscape's id (32 hex digits)")
+    robot_id: str | None = Field(description="the stored robot; null for an inline robot")
+    method: LandscapeMethod = Field(description="the method whose parameters span the grid")
+    x: LandscapeAxisOut = Field(description="the grid's rows (first index)")
+    y: LandscapeAxisOut = Field(description="the grid's columns (second index)")
+    fixed: MethodParams = Field(description="the method's other parameters")
     objective_b: list[list[float | None]] = Field(description="B per cell [x index][y index]; null where infeasible")
     feasible: list[list[bool]] = Field(description="every task's plan finite and within the joint speed limit")
     max_joint_speed_deg_s: list[list[float | None]] = Field(
         description="the largest joint speed over the tasks, deg/s (null where a plan diverged)"
     )
-    best_params: dict[str, float] = Field(description="the cell with the smallest B (empty if none is feasible)")
-    best_objective_b: float | None
+    best_params: MethodParams = Field(description="the cell with the smallest B (empty if none is feasible)")
+    best_objective_b: float | None = Field(description="B of that cell; null if none is feasible")
     feasible_fraction: float = Field(description="share of feasible cells, 0 to 1")
-    marks: LandscapeMarks | None
+    marks: LandscapeMarks | None = Field(description="the tuning job named in the request; null if none")
     evaluations: int = Field(description="plans run: cells x tasks")
     elapsed_s: float = Field(description="s, computing the grid")
-    created_at: datetime
-    links: LandscapeLinks
+    created_at: datetime = Field(description="when it was stored (UTC)")
+    links: LandscapeLinks = Field(description="where its heatmap is")

@@ -11,6 +11,10 @@ future):
   key and never logged. ``/healthz``, ``/readyz``, ``/openapi.json``, ``/docs``, ``/static`` and
   ``/login`` stay open.
 - ``MethodsMiddleware`` (:mod:`service.http`): HEAD and OPTIONS everywhere, complete ``Allow``.
+- ``CORSMiddleware`` (Starlette's), only with ``SPACEARM_CORS_ORIGINS``: pages of those origins
+  may call the API. It answers preflights itself, outside the bearer check (a preflight carries no
+  credentials) and outside ``MethodsMiddleware`` (which answers a plain ``OPTIONS`` with ``Allow``
+  and leaves preflights alone). No cookies cross origins: a key is sent as a bearer header.
 - ``SecurityHeadersMiddleware``: nosniff everywhere; CSP, no framing and no referrer on pages.
 """
 
@@ -23,6 +27,7 @@ from urllib.parse import quote
 
 import anyio
 from fastapi import FastAPI
+from starlette.middleware.cors import CORSMiddleware
 from starlette.responses import RedirectResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -155,12 +160,19 @@ class BearerAuthMiddleware:
         await response(scope, receive, send)
 
 
-#: The pages' Content-Security-Policy: scripts, styles and images from this site only, no
-#: framing, forms post to this site only.
-CSP = (
-    "default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self'; "
-    "object-src 'none'; base-uri 'none'; frame-ancestors 'none'; form-action 'self'"
-)
+def page_csp(inline_styles: bool = False) -> str:
+    """The pages' Content-Security-Policy: scripts, styles and images from this site only, no
+    framing, forms post to this site only. ``inline_styles`` also allows ``<style>`` elements
+    and style attributes, and workers from ``blob:`` URLs, for ReDoc (:mod:`service.routers.docs`),
+    which makes its styles and its search worker at run time; scripts stay this site's only."""
+    style, workers = ("'self' 'unsafe-inline'", "'self' blob:") if inline_styles else ("'self'", "'self'")
+    return (
+        f"default-src 'self'; script-src 'self'; style-src {style}; worker-src {workers}; img-src 'self' data:; "
+        "connect-src 'self'; object-src 'none'; base-uri 'none'; frame-ancestors 'none'; form-action 'self'"
+    )
+
+
+CSP = page_csp()
 
 
 class SecurityHeadersMiddleware:
@@ -194,6 +206,12 @@ class SecurityHeadersMiddleware:
         await self.app(scope, receive, sender)
 
 
+#: What a page of another origin may send and read (with ``SPACEARM_CORS_ORIGINS``).
+CORS_METHODS = ["GET", "HEAD", "POST", "DELETE"]
+CORS_REQUEST_HEADERS = ["Authorization", "Content-Type", "Idempotency-Key", "If-None-Match", "Last-Event-ID", "X-Request-ID"]
+CORS_EXPOSED_HEADERS = ["Location", "Retry-After", "ETag", "Allow", "WWW-Authenticate", "X-Request-ID"]
+
+
 def install(app: FastAPI, settings: Settings) -> None:
     """Add the guards to ``app`` and say in the start-up log whether authentication is on."""
     keys = settings.keys()
@@ -202,6 +220,18 @@ def install(app: FastAPI, settings: Settings) -> None:
     # added after = outside: unauthenticated bodies are never read
     app.add_middleware(BearerAuthMiddleware, keys=keys, internal_token=app.state.internal_token)
     app.add_middleware(MethodsMiddleware, router=app)
+    origins = settings.cors_origin_list()
+    if origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=origins,
+            allow_methods=CORS_METHODS,
+            allow_headers=CORS_REQUEST_HEADERS,
+            expose_headers=CORS_EXPOSED_HEADERS,
+            allow_credentials=False,
+            max_age=600,
+        )
+        log.info("CORS is on for %s", ", ".join(origins))
     app.add_middleware(SecurityHeadersMiddleware)
     if keys:
         log.info("authentication is on: /v1 requires a bearer key (%d key(s) configured)", len(keys))

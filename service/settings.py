@@ -71,12 +71,22 @@ class Settings(BaseSettings):
         description="finished tuning jobs and plans older than this many days are deleted; unset: kept for ever",
     )
     retention_sweep_s: float = Field(default=600.0, gt=0, description="how often the API looks for expired jobs and plans")
+    cors_origins: str = Field(
+        default="",
+        max_length=10_000,
+        description="comma-separated origins (scheme://host[:port]) whose browser pages may call the API (CORS), or `*` "
+        "for any; empty: CORS off",
+    )
 
     def pool_size(self) -> int:
         return self.db_pool_size or self.api_threads
 
     def plan_slots(self) -> int:
         return self.max_concurrent_plans or max(1, os.cpu_count() or 1)
+
+    def cors_origin_list(self) -> list[str]:
+        """The origins CORS allows (empty: CORS is off); without a trailing slash, as browsers send them."""
+        return [o.strip().rstrip("/") for o in self.cors_origins.split(",") if o.strip()]
 
     def keys(self) -> list[str]:
         """The configured API keys (empty: authentication is off)."""

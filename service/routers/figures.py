@@ -9,11 +9,12 @@ import hashlib
 from functools import partial
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 from sqlalchemy import select
 from sqlalchemy.orm import Session
+from typing_extensions import TypeAliasType
 
 from service import figures
 from service.deps import JobId, PlanId, SessionRoute
@@ -24,17 +25,33 @@ from service.storage import unpack_trajectory
 
 router = APIRouter(tags=["figures"], route_class=SessionRoute)
 
-Format = Annotated[Literal["svg", "png"], Query(description="svg (default) or png")]
+FigureFormat = TypeAliasType("FigureFormat", Literal["svg", "png"])
+assert set(FigureFormat.__value__.__args__) == set(figures.FORMATS)
+Format = Annotated[FigureFormat, Query(description="`svg` (default, image/svg+xml) or `png` (image/png)")]
 MAX_COMPARE = 8
 
+
+def figure_name(names: tuple[str, ...] | list[str]) -> Any:
+    """A figure name in the path: an enum in the document (so clients type it); an unknown name
+    is still answered by the handler, a 404 whose ``valid_names`` lists the names."""
+    return Path(description="the figure", json_schema_extra={"enum": list(names)})
+
+
+#: The image (binary: SVG is text, but clients should store the bytes as they come), and a 304
+#: for a conditional request whose ``If-None-Match`` names the current ``ETag``.
 IMAGE_RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {
-        "description": "the figure",
-        "content": {
-            "image/svg+xml": {"schema": {"type": "string"}},
-            "image/png": {"schema": {"type": "string", "format": "binary"}},
+        "description": "the figure: SVG (`format=svg`, the default) or PNG (`format=png`)",
+        "content": {media: {"schema": {"type": "string", "format": "binary"}} for media in ("image/svg+xml", "image/png")},
+        "headers": {
+            "ETag": {"description": "the figure's version; send it back in `If-None-Match`", "schema": {"type": "string"}},
+            "Cache-Control": {
+                "description": "`public, max-age=86400` for plan figures (a plan never changes), `no-cache` for a job's",
+                "schema": {"type": "string"},
+            },
         },
     },
+    304: {"description": "not modified: `If-None-Match` names the current `ETag`"},
 }
 
 
@@ -96,7 +113,7 @@ def robot_parameters(session: Session, p: Plan) -> dict[str, Any] | None:
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
 async def compare_plans_figure(
-    name: str,
+    name: Annotated[str, figure_name(figures.COMPARE_FIGURES)],
     request: Request,
     ids: Annotated[str, Query(description="comma-separated plan ids", min_length=1, max_length=2000)],
     format: Format = "svg",
@@ -141,7 +158,9 @@ def _compare_plans_figure(name: str, request: Request, ids: str, format: str) ->
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
-async def get_plan_figure(plan_id: PlanId, name: str, request: Request, format: Format = "svg") -> Response:
+async def get_plan_figure(
+    plan_id: PlanId, name: Annotated[str, figure_name(list(figures.PLAN_FIGURES))], request: Request, format: Format = "svg"
+) -> Response:
     if name not in figures.PLAN_FIGURES:
         raise UnknownFigureError(name, list(figures.PLAN_FIGURES))
     async with request.app.state.figure_admission.slot():
@@ -175,7 +194,9 @@ def _plan_figure(plan_id: PlanId, name: str, request: Request, format: str) -> R
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
-async def get_tuning_job_figure(job_id: JobId, name: str, request: Request, format: Format = "svg") -> Response:
+async def get_tuning_job_figure(
+    job_id: JobId, name: Annotated[str, figure_name(figures.JOB_FIGURES)], request: Request, format: Format = "svg"
+) -> Response:
     if name not in figures.JOB_FIGURES:
         raise UnknownFigureError(name, figures.JOB_FIGURES)
     async with request.app.state.figure_admission.slot():

@@ -14,6 +14,7 @@ from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy.dialects import postgresql, sqlite
 
+from service import openapi
 from service.db import Database, unavailable_reason
 from service.deps import SessionRoute
 from service.migrate import current_revision, head_revision
@@ -26,7 +27,15 @@ READY_TIMEOUT_S = 3.0
 PROBE_NAME = f"readyz:{socket.gethostname()}:{os.getpid()}"[:64]
 
 
-@router.get("/healthz", operation_id="healthz", response_model=Health, response_model_exclude_none=True, summary="Liveness")
+@router.get(
+    "/healthz",
+    operation_id="healthz",
+    response_model=Health,
+    response_model_exclude_none=True,
+    summary="Liveness",
+    description='Always `{"status": "ok"}` while the process serves requests; touches neither the kernels nor '
+    "the database (use `/readyz` for those). Open even with `SPACEARM_API_KEYS` set.",
+)
 async def healthz() -> Health:
     return Health(status="ok")
 
@@ -63,7 +72,11 @@ def check_database(health_db: Database, db: Database) -> Health:
     operation_id="readyz",
     response_model=Health,
     summary="Readiness: the engine's kernels are loaded; the database is reachable, takes writes and is at the head revision",
-    responses={503: {"description": "not ready", "model": Health}},
+    description="200 once the engine's compiled kernels are loaded and the database is reachable, writable and migrated "
+    "to the revision this version needs (`revision` = `head`); otherwise 503 saying which is not (`kernels`: "
+    "`loading` while the kernels compile or load at start-up). Answers within about 3 s however busy the API is. "
+    "Open even with `SPACEARM_API_KEYS` set.",
+    responses={503: {"description": "not ready (see `kernels` and `database`)", "model": Health, "headers": openapi.RETRY_AFTER}},
 )
 async def readyz(request: Request) -> Health | JSONResponse:
     state = request.app.state

@@ -139,7 +139,12 @@ def generation_event(snap: Snapshot, attempt: int, number: int, row: dict[str, A
     "generation, generations, best and mean B, feasible count), then `end` with the final status, and the stream "
     "closes. Heartbeat comments keep idle connections open. Resume with `Last-Event-ID` (an EventSource sends it "
     "when it reconnects) or `?last_event_id=`; an id this job never sent is a 422.",
-    responses=responses(404, 422),
+    # `schema`, besides the `itemSchema` (one event) FastAPI documents: the whole body as text, which
+    # generators that know no event streams (openapi-python-client) type as a string.
+    responses={
+        200: {"content": {"text/event-stream": {"schema": {"type": "string", "description": "the event stream, as text"}}}},
+        **responses(404, 422),
+    },
 )
 async def get_tuning_job_events(
     start: Annotated[StreamStart, Depends(stream_start)], request: Request

@@ -125,7 +125,7 @@ def _create(db: Database, body: LandscapeRequest, settings: Settings) -> Respons
                 body.method,
                 (body.x.name, x_values),
                 (body.y.name, y_values),
-                fixed=body.fixed,
+                fixed=body.fixed.given() if body.fixed else None,
                 weights=(objective.weights[0], objective.weights[1]),
                 aggregation=objective.aggregation,
                 attitude_term=objective.attitude_term,

@@ -27,8 +27,8 @@ from engine.redundancy import SecondaryObjective
 from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
 from service.db import Database
-from service.deps import PlanId, SessionDep, SessionRoute, SettingsDep, delete_row
-from service.errors import MAX_OFFSET, ApiValidationError, NotFoundError, responses
+from service.deps import Limit, Offset, PlanId, SessionDep, SessionRoute, SettingsDep, delete_row
+from service.errors import ApiValidationError, NotFoundError, responses
 from service.models import Plan
 from service.quota import check_quota
 from service.schemas import PLAN_SECTIONS, PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
@@ -118,7 +118,7 @@ def plan_summary(p: Plan) -> PlanSummary:
     return PlanSummary(
         id=p.id,
         robot_id=p.robot_id,
-        method=p.method,
+        method=p.method,  # type: ignore[arg-type]
         success=p.success,
         message=p.message,
         metrics=p.metrics,  # type: ignore[arg-type]
@@ -138,6 +138,11 @@ def plan_json(summary: PlanSummary, sections: dict[str, Any]) -> bytes:
     response_model=PlanOut,
     status_code=status.HTTP_201_CREATED,
     summary="Plan a Cartesian task (synchronous) and store the plan",
+    description="Plans the task with the robust inverse given (the base moving freely, momentum conserved), replays "
+    "it independently if `replay` is true, stores it and answers 201 with the plan and its `Location`. A plan that "
+    "fails (diverges, breaks the joint speed limit, leaves the path) is still a result: `success` is false and "
+    "`message` says where and why. Plans run a few at a time per API process; beyond a short queue the answer is "
+    "503 with `Retry-After`. `fields` chooses the sections of the answer.",
     responses=responses(404, 422),
 )
 async def create_plan(body: PlanRequest, request: Request, settings: SettingsDep, fields: FieldsQuery = None) -> Response:
@@ -177,7 +182,7 @@ def compute_plan(session: Session, body: PlanRequest, settings: Settings) -> tup
     robot_id, model = resolve_robot(session, body.robot_id, body.robot)
     session.rollback()  # end the read: no connection is held while the plan is computed
     task = build_task(model, body.task)
-    inverse = check_method(body.method.name, body.method.params)
+    inverse = check_method(body.method.name, body.method.params.given())
     return finish_plan(
         body,
         robot_id,
@@ -258,10 +263,15 @@ def rehearse(db: Database, settings: Settings) -> None:
             session.rollback()
 
 
-@router.get("", operation_id="list_plans", response_model=PlanList, summary="List stored plans (without trajectories)")
-def list_plans(
-    session: SessionDep, limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0, le=MAX_OFFSET)
-) -> PlanList:
+@router.get(
+    "",
+    operation_id="list_plans",
+    response_model=PlanList,
+    summary="List stored plans (without trajectories)",
+    description="Stored plans, newest first, `limit` at a time from `offset`: each plan's summary (method, verdict, "
+    "metrics); `total` counts them all.",
+)
+def list_plans(session: SessionDep, limit: Limit = 50, offset: Offset = 0) -> PlanList:
     total = session.scalar(select(func.count()).select_from(Plan)) or 0
     rows = session.execute(
         select(Plan.id, Plan.robot_id, Plan.method, Plan.success, Plan.message, Plan.metrics, Plan.elapsed_s, Plan.created_at)
@@ -273,7 +283,13 @@ def list_plans(
 
 
 @router.get(
-    "/{plan_id:id}", operation_id="get_plan", response_model=PlanOut, summary="Get a stored plan", responses=responses(404, 422)
+    "/{plan_id:id}",
+    operation_id="get_plan",
+    response_model=PlanOut,
+    summary="Get a stored plan",
+    description="A stored plan as `POST /v1/plans` answered it; `fields` chooses the sections (`fields=` for the "
+    "summary only, `fields=replay` without the trajectory).",
+    responses=responses(404, 422),
 )
 def get_plan(plan_id: PlanId, session: SessionDep, fields: FieldsQuery = None) -> Response:
     sections = parse_fields(fields)

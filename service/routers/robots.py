@@ -7,7 +7,7 @@ import math
 from typing import Any
 
 import numpy as np
-from fastapi import APIRouter, Body, Query, Response, status
+from fastapi import APIRouter, Body, Response, status
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 from sqlalchemy import func, select
@@ -18,8 +18,8 @@ from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from service import jsonio
 from service.convert import clean, joint_positions, robot_model, urdf_model
-from service.deps import SessionDep, SessionRoute, SettingsDep, load_row
-from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, responses
+from service.deps import Limit, Offset, RobotId, SessionDep, SessionRoute, SettingsDep, load_row
+from service.errors import ApiValidationError, ConflictError, responses
 from service.models import Robot
 from service.quota import check_quota
 from service.schemas import JacobianOut, JacobianRequest, JointOut, RobotList, RobotOut, RobotParams, RobotUrdfIn
@@ -60,15 +60,19 @@ def joints_out(model: RobotModel) -> tuple[list[JointOut], list[str]]:
 
 def robot_out(robot: Robot) -> RobotOut:
     joints, notes = joints_out(robot_model(robot.parameters))
-    return RobotOut(
-        id=robot.id,
-        name=robot.name,
-        preset=robot.preset,
-        n_joints=len(robot.parameters.get("links", [])),
-        parameters=robot.parameters,
-        joints=joints,
-        notes=notes,
-        created_at=robot.created_at,
+    # the stored parameters were validated on the way in (and normalised since): not strictly again
+    return RobotOut.model_validate(
+        {
+            "id": robot.id,
+            "name": robot.name,
+            "preset": robot.preset,
+            "n_joints": len(robot.parameters.get("links", [])),
+            "parameters": robot.parameters,
+            "joints": joints,
+            "notes": notes,
+            "created_at": robot.created_at,
+        },
+        strict=False,
     )
 
 
@@ -76,10 +80,16 @@ def load_robot(session: Session, robot_id: str) -> Robot:
     return load_row(session, Robot, robot_id, "robot")
 
 
-@router.get("", operation_id="list_robots", response_model=RobotList, summary="List robots", responses=responses(422))
-def list_robots(
-    session: SessionDep, limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0, le=MAX_OFFSET)
-) -> RobotList:
+@router.get(
+    "",
+    operation_id="list_robots",
+    response_model=RobotList,
+    summary="List robots",
+    description="Stored robots, oldest first (the `table1` preset first), `limit` at a time from `offset`; "
+    "`total` counts them all.",
+    responses=responses(422),
+)
+def list_robots(session: SessionDep, limit: Limit = 50, offset: Offset = 0) -> RobotList:
     total = session.scalar(select(func.count()).select_from(Robot)) or 0
     rows = session.scalars(select(Robot).order_by(Robot.created_at, Robot.id).limit(limit).offset(offset)).all()
     return RobotList(items=[robot_out(r) for r in rows], total=total)
@@ -94,7 +104,8 @@ CREATE_ROBOT_BODY: dict[str, Any] = {
         "required": True,
         "content": {
             "application/json": {
-                "schema": {"oneOf": [_schema_ref(RobotParams), RobotUrdfIn.model_json_schema()]},
+                # RobotUrdfIn is added to the document's components by service.openapi (BODY_MODELS)
+                "schema": {"oneOf": [_schema_ref(RobotParams), _schema_ref(RobotUrdfIn)]},
                 "examples": {
                     "urdf": {
                         "summary": "a URDF robot (the URDF as text in the `urdf` field)",
@@ -124,7 +135,9 @@ def _validated(model: type[RobotParams] | type[RobotUrdfIn], body: dict[str, Any
     description="The body is either a parameter set (`RobotParams`) or a URDF document as text in the field `urdf`, "
     "with `end_effector_link` and an optional tool offset (`RobotUrdfIn`). A URDF robot is stored as the parameter set "
     "derived from it (shown in the response); a URDF the service cannot use is a 422 whose `element` names the URDF "
-    "element at fault.",
+    "element at fault. The parameters are checked as the engine needs them (masses positive, inertias symmetric "
+    "positive definite and physical, joint axes and rotations valid; a 422 names the field, e.g. "
+    "`body.links[2].inertia`) and the joint axes normalised; 201 with the robot and its `Location`.",
     responses=responses(422),
     openapi_extra=CREATE_ROBOT_BODY,
 )
@@ -143,8 +156,15 @@ def create_robot(session: SessionDep, settings: SettingsDep, response: Response,
     return robot_out(robot)
 
 
-@router.get("/{robot_id}", operation_id="get_robot", response_model=RobotOut, summary="Get a robot", responses=responses(404))
-def get_robot(robot_id: str, session: SessionDep) -> RobotOut:
+@router.get(
+    "/{robot_id}",
+    operation_id="get_robot",
+    response_model=RobotOut,
+    summary="Get a robot",
+    description="A stored robot and its parameter set; `table1` is the paper's Table-1 robot.",
+    responses=responses(404),
+)
+def get_robot(robot_id: RobotId, session: SessionDep) -> RobotOut:
     return robot_out(load_robot(session, robot_id))
 
 
@@ -152,13 +172,15 @@ def get_robot(robot_id: str, session: SessionDep) -> RobotOut:
     "/{robot_id}/urdf",
     operation_id="get_robot_urdf",
     summary="The robot as a URDF document (reads back to the same model here and in Pinocchio)",
+    description="The stored robot as URDF text (SI units; revolute, continuous and prismatic joints with their "
+    "limits): `POST /v1/robots` with it in `urdf` (and its end-effector link) stores the same model again.",
     response_class=Response,
     responses={
         200: {"description": "URDF (XML)", "content": {"application/xml": {"schema": {"type": "string"}}}},
         **responses(404),
     },
 )
-def get_robot_urdf(robot_id: str, session: SessionDep) -> Response:
+def get_robot_urdf(robot_id: RobotId, session: SessionDep) -> Response:
     model = robot_model(load_robot(session, robot_id).parameters)
     return Response(model.to_urdf(), media_type="application/xml")
 
@@ -168,9 +190,11 @@ def get_robot_urdf(robot_id: str, session: SessionDep) -> Response:
     operation_id="delete_robot",
     status_code=status.HTTP_204_NO_CONTENT,
     summary="Delete a robot (presets cannot be deleted)",
+    description="204 once deleted. Stored plans keep their results (their `robot_id` becomes null); a queued tuning job "
+    "for the robot fails when a worker takes it. Deleting a preset is a 409.",
     responses=responses(404, 409),
 )
-def delete_robot(robot_id: str, session: SessionDep) -> Response:
+def delete_robot(robot_id: RobotId, session: SessionDep) -> Response:
     robot = load_robot(session, robot_id)
     if robot.preset:
         raise ConflictError(f"robot {robot_id!r} is a preset and cannot be deleted")
@@ -189,9 +213,12 @@ JOINT_FIELDS = ("joint_angles_deg", "joint_displacements_m")
     operation_id="compute_jacobian",
     response_model=JacobianOut,
     summary="Generalized Jacobian (GJM) and end-effector pose at a state",
+    description="The GJM of the free-floating robot (the base's reaction included, zero momentum) at the joint angles "
+    "and base pose given, with its singular values, determinant, manipulability and condition number, and the "
+    "end-effector pose. Nothing is stored.",
     responses=responses(404, 422),
 )
-def compute_jacobian(robot_id: str, body: JacobianRequest, session: SessionDep) -> JacobianOut:
+def compute_jacobian(robot_id: RobotId, body: JacobianRequest, session: SessionDep) -> JacobianOut:
     model = robot_model(load_robot(session, robot_id).parameters)
     try:
         attitude = quaternion_to_matrix(body.base_attitude_quaternion) if body.base_attitude_quaternion else np.eye(3)

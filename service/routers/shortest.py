@@ -96,7 +96,7 @@ def _search(
     body: ShortestDurationRequest, robot_id: str | None, model: RobotModel, settings: Settings
 ) -> tuple[Plan, dict[str, np.ndarray], DurationSearch]:
     task = build_task(model, body.task)
-    inverse = check_method(body.method.name, body.method.params)
+    inverse = check_method(body.method.name, body.method.params.given())
     found: list[DurationSearch] = []
 
     def search() -> PlanResult:

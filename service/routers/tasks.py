@@ -12,7 +12,9 @@ turned about world axes (15 deg about z, 10 deg about y, then back).
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from typing import Annotated
+
+from fastapi import APIRouter, Path
 
 from engine.trajectory import PAPER_Q0_DEG
 from service.deps import SessionRoute
@@ -86,7 +88,7 @@ PRESETS: dict[str, TaskPreset] = {
         "passes near the GJM's singularity (the plain inverse breaks the 6 deg/s limit); tuned adaptive damping",
         robot_id="table1",
         task=TaskIn(q0_deg=list(PAPER_Q0_DEG), path=RASTER_PATCH),
-        method=MethodIn(name="adaptive", params={"lambda_max": 0.02038, "epsilon": 0.1200}),
+        method=MethodIn.model_validate({"name": "adaptive", "params": {"lambda_max": 0.02038, "epsilon": 0.1200}}),
     ),
     "waypoint-inspection": TaskPreset(
         name="waypoint-inspection",
@@ -95,7 +97,7 @@ PRESETS: dict[str, TaskPreset] = {
         "(the plain inverse breaks the 6 deg/s limit); tuned adaptive damping",
         robot_id="table1",
         task=TaskIn(q0_deg=list(PAPER_Q0_DEG), path=WAYPOINT_INSPECTION),
-        method=MethodIn(name="adaptive", params={"lambda_max": 0.02753, "epsilon": 0.1736}),
+        method=MethodIn.model_validate({"name": "adaptive", "params": {"lambda_max": 0.02753, "epsilon": 0.1736}}),
     ),
     "arm7-line": TaskPreset(
         name="arm7-line",
@@ -132,15 +134,28 @@ PRESETS: dict[str, TaskPreset] = {
 }
 
 
-@router.get("", operation_id="list_task_presets", response_model=TaskPresetList, summary="List task presets")
+@router.get(
+    "",
+    operation_id="list_task_presets",
+    response_model=TaskPresetList,
+    summary="List task presets",
+    description="Every task preset: the paper's detection line (`paper-line`) and its variants, a raster scan and a "
+    "waypoint inspection, each with the robot and method it is meant for, in the shape of a plan request's fields.",
+)
 def list_task_presets() -> TaskPresetList:
     return TaskPresetList(items=list(PRESETS.values()), total=len(PRESETS))
 
 
 @router.get(
-    "/{name}", operation_id="get_task_preset", response_model=TaskPreset, summary="Get a task preset", responses=responses(404)
+    "/{name}",
+    operation_id="get_task_preset",
+    response_model=TaskPreset,
+    summary="Get a task preset",
+    description="One task preset by name; its `task` (and `method`, if any) can be posted as they are in a plan "
+    "request or (the task) a tuning job.",
+    responses=responses(404),
 )
-def get_task_preset(name: str) -> TaskPreset:
+def get_task_preset(name: Annotated[str, Path(description="the preset's name, e.g. `paper-line`")]) -> TaskPreset:
     if name not in PRESETS:
         raise NotFoundError("task preset", name)
     return PRESETS[name]

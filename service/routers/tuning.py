@@ -14,8 +14,8 @@ from sqlalchemy.orm import Session
 from service import jsonio, queue
 from service.convert import resolve_robot
 from service.db import Database
-from service.deps import JobId, SessionDep, SessionRoute, SettingsDep, load_row
-from service.errors import MAX_OFFSET, ApiValidationError, ConflictError, TooManyRequestsError, responses
+from service.deps import JobId, Limit, Offset, SessionDep, SessionRoute, SettingsDep, load_row
+from service.errors import ApiValidationError, ConflictError, TooManyRequestsError, responses
 from service.jobs import MAX_JOB_JOINT_STEPS, validate_request
 from service.models import TuningJob
 from service.quota import check_quota
@@ -78,7 +78,7 @@ def job_phases(request: dict[str, Any], history: list[dict[str, Any]]) -> list[J
         by_role.setdefault(_role(row, method, restarts), []).append(record)
     return [
         JobPhase(
-            name=name,
+            name=name,  # type: ignore[arg-type]
             role=role,
             generations=generations,
             completed=max((r.generation for r in by_role.get(role, [])), default=0),
@@ -113,7 +113,7 @@ def job_out(job: TuningJob) -> TuningJobOut:
         id=job.id,
         status=job.status,  # type: ignore[arg-type]
         robot_id=job.robot_id,
-        method=str(job.request.get("method", "adaptive")),
+        method=job.request.get("method", "adaptive"),
         progress=JobProgress(**progress, phases=phases),
         attempts=job.attempts,
         max_attempts=job.max_attempts,
@@ -205,13 +205,19 @@ def create_tuning_job(
 
 
 @router.get(
-    "", operation_id="list_tuning_jobs", response_model=TuningJobList, summary="List tuning jobs", responses=responses(422)
+    "",
+    operation_id="list_tuning_jobs",
+    response_model=TuningJobList,
+    summary="List tuning jobs",
+    description="Tuning jobs, newest first, `limit` at a time from `offset`, optionally only those with `status`; "
+    "`total` counts them all.",
+    responses=responses(422),
 )
 def list_tuning_jobs(
     session: SessionDep,
-    status_: Annotated[JobStatus | None, Query(alias="status")] = None,
-    limit: int = Query(50, ge=1, le=500),
-    offset: int = Query(0, ge=0, le=MAX_OFFSET),
+    status_: Annotated[JobStatus | None, Query(alias="status", description="only the jobs with this status")] = None,
+    limit: Limit = 50,
+    offset: Offset = 0,
 ) -> TuningJobList:
     where = [TuningJob.status == status_] if status_ else []
     total = session.scalar(select(func.count()).select_from(TuningJob).where(*where)) or 0
@@ -230,6 +236,8 @@ def _load(session: SessionDep, job_id: JobId) -> TuningJob:
     operation_id="get_tuning_job",
     response_model=TuningJobOut,
     summary="Get a tuning job",
+    description="The job's status and progress (generation, evaluations, best B so far and its parameters); poll it "
+    "until `status` is `succeeded`, `failed` or `cancelled`.",
     responses=responses(404),
 )
 def get_tuning_job(job_id: JobId, session: SessionDep) -> TuningJobOut:
@@ -242,6 +250,9 @@ def get_tuning_job(job_id: JobId, session: SessionDep) -> TuningJobOut:
     response_model=TuningJobResult,
     response_model_by_alias=True,
     summary="Result of a succeeded tuning job (409 until then)",
+    description="The tuned parameters, their B and metrics per task, the GA's history per generation and, with "
+    "`compare_with_dls`, the tuned DLS baseline and the improvement over it. A 409 until the job has succeeded "
+    "(its `detail` says the job's status and error).",
     responses=responses(404, 409),
 )
 def get_tuning_job_result(job_id: JobId, session: SessionDep) -> TuningJobResult:
@@ -258,6 +269,9 @@ def get_tuning_job_result(job_id: JobId, session: SessionDep) -> TuningJobResult
     response_model=TuningJobOut,
     status_code=status.HTTP_202_ACCEPTED,
     summary="Cancel a tuning job (a running one stops after its current generation)",
+    description="A queued job is cancelled at once; a running one stops within a second or two (the worker looks for "
+    "the request every second, inside a generation). 202 with the job (`cancel_requested` true); a job that "
+    "already succeeded or failed is a 409.",
     responses=responses(404, 409),
 )
 def cancel_tuning_job(job_id: JobId, session: SessionDep, request: Request) -> TuningJobOut:

@@ -1,5 +1,5 @@
-"""Limits (413, 429), bearer authentication, concurrent submissions, idempotency under retries
-and crash safety, over real HTTP against uvicorn and worker subprocesses."""
+"""Limits (413, 429), bearer authentication, CORS, concurrent submissions, idempotency under
+retries and crash safety, over real HTTP against uvicorn and worker subprocesses."""
 
 from __future__ import annotations
 
@@ -112,14 +112,75 @@ def test_api_keys_turn_on_bearer_auth(make_stack: Callable[..., Stack]) -> None:
 
 
 def test_without_keys_auth_is_off_and_logged(make_stack: Callable[..., Stack]) -> None:
+    """Also: without ``SPACEARM_CORS_ORIGINS`` there is no CORS (no header grants another origin
+    anything; a preflight is answered like any OPTIONS without a route for it)."""
     stack = make_stack()
     stack.env.pop("SPACEARM_API_KEYS", None)
+    stack.env.pop("SPACEARM_CORS_ORIGINS", None)
     stack.start_api()
     with stack.client() as client:
         assert client.get("/v1/robots").status_code == 200
+        origin = {"Origin": TOOL_ORIGIN}
+        preflight = client.options("/v1/plans", headers={**origin, **_preflight("POST", "content-type")})
+        simple = client.get("/v1/robots", headers=origin)
+        plain = client.options("/v1/plans")
+        for r in (preflight, simple, plain):
+            assert not [h for h in r.headers if h.lower().startswith("access-control-")], r.headers
+        assert preflight.status_code == 405 and simple.status_code == 200
+        assert plain.status_code == 204 and plain.headers["allow"] == "GET, HEAD, POST, OPTIONS"
     stack.stop_api()
     log = (stack.dir / "api.log").read_text()
-    assert "authentication is OFF" in log and "127.0.0.1" in log
+    assert "authentication is OFF" in log and "127.0.0.1" in log and "CORS" not in log
+
+
+TOOL_ORIGIN = "http://tool.example:5173"
+
+
+def _preflight(method: str, headers: str) -> dict[str, str]:
+    return {"Access-Control-Request-Method": method, "Access-Control-Request-Headers": headers}
+
+
+def test_cors_origins_let_a_page_of_another_origin_call_the_api(make_stack: Callable[..., Stack]) -> None:
+    """With ``SPACEARM_CORS_ORIGINS`` (and keys on): a preflight from a listed origin is answered
+    before authentication (it carries no key) and before the app's own OPTIONS handling; the
+    requests that follow get ``Access-Control-Allow-Origin`` and can read ``Location``; another
+    origin gets nothing; a plain OPTIONS still lists ``Allow``."""
+    stack = make_stack()
+    stack.env["SPACEARM_API_KEYS"] = KEYS[0]
+    stack.env["SPACEARM_CORS_ORIGINS"] = f"{TOOL_ORIGIN}/, https://other.example"
+    stack.start_api()
+    auth = {"Authorization": f"Bearer {KEYS[0]}"}
+    with stack.client() as client:
+        ok = client.options(
+            "/v1/plans", headers={"Origin": TOOL_ORIGIN, **_preflight("POST", "authorization, content-type, idempotency-key")}
+        )
+        assert ok.status_code == 200, ok.text
+        assert ok.headers["access-control-allow-origin"] == TOOL_ORIGIN
+        assert {"POST", "DELETE", "GET"} <= {m.strip() for m in ok.headers["access-control-allow-methods"].split(",")}
+        allowed = {h.strip().lower() for h in ok.headers["access-control-allow-headers"].split(",")}
+        assert {"authorization", "content-type", "idempotency-key"} <= allowed
+        assert "access-control-allow-credentials" not in ok.headers and ok.headers["access-control-max-age"] == "600"
+        stranger = client.options("/v1/plans", headers={"Origin": "http://evil.example", **_preflight("POST", "content-type")})
+        assert stranger.status_code == 400 and "access-control-allow-origin" not in stranger.headers
+        odd_header = client.options("/v1/plans", headers={"Origin": TOOL_ORIGIN, **_preflight("POST", "x-secret")})
+        assert odd_header.status_code == 400
+
+        body = {"robot_id": "table1", "task": PAPER_TASK, "method": {"name": "dls"}, "replay": False}
+        created = client.post("/v1/plans", params={"fields": ""}, json=body, headers={"Origin": TOOL_ORIGIN, **auth})
+        assert created.status_code == 201, created.text
+        assert created.headers["access-control-allow-origin"] == TOOL_ORIGIN
+        exposed = {h.strip().lower() for h in created.headers["access-control-expose-headers"].split(",")}
+        assert {"location", "retry-after", "etag"} <= exposed and "origin" in created.headers["vary"].lower()
+        other = client.get("/v1/robots", headers={"Origin": "https://other.example", **auth})
+        assert other.headers["access-control-allow-origin"] == "https://other.example"
+        denied = client.get("/v1/robots", headers={"Origin": TOOL_ORIGIN})  # no key: the 401 is readable
+        assert denied.status_code == 401 and denied.headers["access-control-allow-origin"] == TOOL_ORIGIN
+        foreign = client.get("/v1/robots", headers={"Origin": "http://evil.example", **auth})
+        assert foreign.status_code == 200 and "access-control-allow-origin" not in foreign.headers
+        plain = client.options("/v1/plans", headers=auth)
+        assert plain.status_code == 204 and plain.headers["allow"] == "GET, HEAD, POST, OPTIONS"
+    stack.stop_api()
+    assert f"CORS is on for {TOOL_ORIGIN}, https://other.example" in (stack.dir / "api.log").read_text()
 
 
 # --- concurrency and idempotency

@@ -1,6 +1,10 @@
 """The web page in a real headless Chromium (selenium + Debian ``chromium-driver``): open ``/``,
 submit the paper's task through the form, land on the plan page and see its figures loaded;
-submit a small tuning job and watch its page reach ``succeeded`` with the convergence figure.
+submit a small tuning job and watch its page reach ``succeeded`` with the convergence figure;
+the API docs (Swagger UI at ``/docs``, ReDoc at ``/redoc``) render every operation offline.
+
+The browser resolves no host name but 127.0.0.1 (``--host-resolver-rules``): every page works
+without the network.
 
 Chromium and chromedriver are installed by ``tests/browser/setup.sh`` when missing (apt-get,
 needs root or sudo). Set ``SPACEARM_SKIP_BROWSER_TESTS=1`` to skip these tests on a machine
@@ -36,6 +40,8 @@ CHROMIUM_FLAGS = [
     "--disable-sync",
     "--disable-extensions",
     "--window-size=1400,1000",
+    # offline: no name resolves but the test stack's address
+    "--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE 127.0.0.1",
 ]
 
 ALL_IMAGES_LOADED = """
@@ -73,6 +79,7 @@ def driver(browser_binaries: tuple[str, str]) -> Iterator[Any]:
     options.binary_location = chromium
     for flag in [*CHROMIUM_FLAGS, f"--user-data-dir={profile}"]:
         options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})  # console messages, CSP reports among them
     drv = webdriver.Chrome(options=options, service=Service(executable_path=chromedriver))
     drv.set_page_load_timeout(120)
     SCREENS.mkdir(parents=True, exist_ok=True)
@@ -196,3 +203,43 @@ def test_submit_tuning_job_and_follow_progress(driver: Any, stack: Stack) -> Non
     assert "succeeded" in driver.find_element(By.ID, "jobs").text
     assert len(driver.find_elements(By.CSS_SELECTOR, "#plans a")) >= 1
     screenshot(driver, "05-index-lists")
+
+
+#: What each docs page shows per operation.
+DOC_PAGES = {
+    "docs": (".opblock", "Swagger UI"),
+    "redoc": ('[data-section-id^="operation/"]', "ReDoc"),
+}
+
+
+def console_errors(drv: Any) -> list[str]:
+    """The browser's console errors since the last call (CSP violations among them)."""
+    return [entry["message"] for entry in drv.get_log("browser") if entry["level"] == "SEVERE"]
+
+
+def test_api_docs_render_every_operation_offline(driver: Any, stack: Stack) -> None:
+    """``/docs`` and ``/redoc`` load their assets from this server only (no CDN; the browser
+    could not resolve one) under the pages' CSP (no inline script), and show every operation of
+    the document. The one console error allowed is ReDoc's Redocly logo, hard-coded to Redocly's
+    CDN and blocked by the CSP before any request."""
+    from selenium.webdriver.common.by import By
+
+    with stack.client() as c:
+        doc = c.get("/openapi.json").json()
+    operations = [op for item in doc["paths"].values() for op in item.values()]
+    console_errors(driver)
+    for page, (selector, title) in DOC_PAGES.items():
+        driver.get(f"{stack.url}/{page}")
+        assert title in driver.title
+        wait_until(driver, lambda d, s=selector: len(d.find_elements(By.CSS_SELECTOR, s)) >= len(operations), timeout=60)
+        text = driver.find_element(By.TAG_NAME, "body").text
+        for op in operations:
+            assert op["summary"] in text, (page, op["operationId"])
+        screenshot(driver, f"06-{page}")
+        resources = driver.execute_script("return performance.getEntriesByType('resource').map(e => e.name)")
+        assert any("/docs/assets/" in r for r in resources) and any(r.endswith("/openapi.json") for r in resources)
+        # ReDoc's logo: blocked by the CSP before any request, listed as a resource all the same
+        logo = "https://cdn.redoc.ly/redoc/logo-mini.svg" if page == "redoc" else None
+        assert [r for r in resources if not r.startswith(stack.url + "/") and r != logo] == []
+        errors = [e for e in console_errors(driver) if logo is None or logo not in e]
+        assert errors == [], errors
