@@ -173,6 +173,15 @@ class Output(BaseModel):
     model_config = ConfigDict(json_schema_serialization_defaults_required=True)
 
 
+def _not_required(*names: str) -> Callable[[dict[str, Any]], None]:
+    """A ``json_schema_extra`` for an :class:`Output` whose fields ``names`` may be left out."""
+
+    def drop(schema: dict[str, Any]) -> None:
+        schema["required"] = [name for name in schema.get("required", []) if name not in names]
+
+    return drop
+
+
 # --- robots -------------------------------------------------------------------------------
 
 
@@ -615,11 +624,24 @@ class MethodIn(Input):
     )
 
 
+class SecondaryOut(Output):
+    """The null-space objective a plan used, its gain filled in."""
+
+    objective: SecondaryObjective = Field(description="the objective (see `SecondaryIn`)")
+    gain: float = Field(description="min_base_rotation: in [0, 1], dimensionless; joint_centering: 1/s")
+
+
 class MethodOut(Output):
-    """The robust inverse a plan used, with every parameter of the method (defaults filled in)."""
+    """The robust inverse a plan used, with every parameter of the method (defaults filled in),
+    and the null-space objective if the plan had one."""
+
+    model_config = ConfigDict(json_schema_extra=_not_required("secondary"))
 
     name: MethodName = Field(description="the method")
     params: MethodParams = Field(description="the method's parameters, every one of them")
+    secondary: SecondaryOut | None = Field(
+        default=None, exclude_if=_omitted_when_none, description="the null-space objective (left out when none)"
+    )
 
 
 class SecondaryIn(Input):
@@ -774,15 +796,6 @@ class PlanMetrics(Output):
 
 #: Trajectory arrays are time-major: one row per sample of `t_s`; null where a value is not finite.
 PER_SAMPLE = "one row per sample of `t_s`"
-
-
-def _not_required(*names: str) -> Callable[[dict[str, Any]], None]:
-    """A ``json_schema_extra`` for an :class:`Output` whose fields ``names`` may be left out."""
-
-    def drop(schema: dict[str, Any]) -> None:
-        schema["required"] = [name for name in schema.get("required", []) if name not in names]
-
-    return drop
 
 
 class Trajectory(Output):

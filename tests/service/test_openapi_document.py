@@ -26,6 +26,7 @@ OPTIONAL_IN_RESPONSES = {
     "Health": {"kernels", "database", "revision", "head"},  # liveness has only `status`
     "Problem": {"instance", "errors"},  # `errors` only on a 422
     "MethodParams": {p.name for spec in METHODS.values() for p in spec.params},  # the method's own only
+    "MethodOut": {"secondary"},  # plans with a null-space objective only
 }
 
 
