@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import os
 from functools import lru_cache
+from typing import Literal
 
-from pydantic import Field, SecretStr
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -15,6 +16,13 @@ class Settings(BaseSettings):
     database_url: str = Field(default="sqlite:///./var/spacearm.db", description="SQLAlchemy URL of the database")
     host: str = Field(default="127.0.0.1", description="address the API binds to")
     port: int = Field(default=8000, ge=1, le=65535, description="port the API listens on")
+    log_format: Literal["text", "json"] = Field(
+        default="text",
+        description="log lines as text, or as one JSON object per line (time, level, logger, message, request_id, job_id)",
+    )
+    log_level: Literal["debug", "info", "warning", "error"] = Field(
+        default="info", description="lowest level logged; debug also shows Alembic's migration steps"
+    )
     worker_poll_seconds: float = Field(default=1.0, gt=0, description="how often an idle worker looks for a queued job")
     job_lease_seconds: float = Field(default=60.0, gt=0, description="how long a job stays claimed without a heartbeat")
     job_max_attempts: int = Field(default=3, ge=1, description="claims of one job before it is failed for good")
@@ -71,6 +79,11 @@ class Settings(BaseSettings):
         description="finished tuning jobs and plans older than this many days are deleted; unset: kept for ever",
     )
     retention_sweep_s: float = Field(default=600.0, gt=0, description="how often the API looks for expired jobs and plans")
+
+    @field_validator("log_format", "log_level", mode="before")
+    @classmethod
+    def _lower(cls, value: object) -> object:
+        return value.lower() if isinstance(value, str) else value
 
     def pool_size(self) -> int:
         return self.db_pool_size or self.api_threads
