@@ -83,7 +83,10 @@ def test_migrate_keeps_alembic_quiet_unless_asked(tmp_path: Path) -> None:
 
 
 def test_make_run_installs_the_runtime_only_and_calls_spacearm_run() -> None:
-    plan = subprocess.run(["make", "-n", "-B", "run"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MFLAGS", "MAKELEVEL")}  # not under `make test`'s
+    plan = subprocess.run(
+        ["make", "--no-print-directory", "-n", "-B", "run"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60
+    )
     assert plan.returncode == 0, plan.stderr
     assert "pip install --quiet -e .\n" in plan.stdout and "[test]" not in plan.stdout
     assert plan.stdout.strip().splitlines()[-1].startswith(".venv/bin/spacearm run")
