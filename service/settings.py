@@ -28,7 +28,7 @@ class Settings(BaseSettings):
     job_max_attempts: int = Field(default=3, ge=1, description="claims of one job before it is failed for good")
     sqlite_busy_timeout_ms: int = Field(default=10_000, ge=0, description="SQLite busy timeout")
     api_keys: SecretStr | None = Field(
-        default=None, description="comma-separated bearer keys; set, every /v1 request needs one (never logged)"
+        default=None, description="comma-separated bearer keys; set, every /v1 request (and /metrics) needs one (never logged)"
     )
     max_queued_jobs: int = Field(default=100, ge=1, description="queued tuning jobs beyond which submissions get 429")
     max_body_bytes: int = Field(default=1024 * 1024, ge=1, description="request bodies above this get 413")
