@@ -113,6 +113,12 @@ def test_request_and_plan_counters_move_by_what_was_done(api: httpx.Client) -> N
     assert value(after, "spacearm_metrics_database_up") == 1
 
 
+def test_metrics_is_documented_as_text_and_open_without_keys(api: httpx.Client) -> None:
+    op = api.get("/openapi.json").json()["paths"]["/metrics"]["get"]
+    assert set(op["responses"]["200"]["content"]) == {"text/plain"}
+    assert "security" not in op and "401" not in op["responses"]  # open, as the API is without keys
+
+
 def test_queue_heartbeat_and_duration_metrics_follow_the_database(json_stack: Stack, api: httpx.Client) -> None:
     before = scrape(api)
     done = api.post("/v1/tuning-jobs", json=job_body(population=4, generations=2)).json()
