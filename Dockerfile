@@ -26,5 +26,6 @@ VOLUME ["/data"]
 EXPOSE 8000
 HEALTHCHECK --interval=30s --timeout=5s --start-period=90s --retries=3 \
     CMD python -c "import os, urllib.request; urllib.request.urlopen('http://127.0.0.1:%s/healthz' % os.environ.get('SPACEARM_PORT', '8000'), timeout=4)"
-# migrate, then the API and one worker; the container stops (and is restarted) if either exits.
-CMD ["bash", "-c", "spacearm migrate || exit 1; spacearm worker & w=$!; spacearm serve & a=$!; trap 'kill -TERM $w $a 2>/dev/null' TERM INT; wait -n; kill -TERM $w $a 2>/dev/null; wait"]
+# `spacearm run`: migrate, then the API and one worker; SIGTERM stops both (the worker gives its job
+# back); the container stops (and is restarted) if either exits.
+CMD ["spacearm", "run"]

@@ -3,6 +3,8 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+RUN_STAMP := $(VENV)/.installed-runtime
+RUN_ARGS ?=
 
 .PHONY: run test lint typecheck bench clean
 
@@ -10,18 +12,20 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# The runtime dependencies only (make run); the test extras (make test) include them.
+$(RUN_STAMP): $(BIN)/python pyproject.toml
+	$(BIN)/python -m pip install --quiet -e .
+	touch $(RUN_STAMP)
+
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
-	touch $(STAMP)
+	touch $(STAMP) $(RUN_STAMP)
 
-# The service: migrate, then the API on 127.0.0.1:8000 and one worker; Ctrl-C stops both.
-run: $(STAMP)
-	$(BIN)/spacearm migrate
-	@trap 'kill $$api $$worker 2>/dev/null; wait $$api $$worker 2>/dev/null; exit 0' INT TERM; \
-	SPACEARM_HOST=127.0.0.1 SPACEARM_PORT=8000 $(BIN)/spacearm serve & api=$$!; \
-	$(BIN)/spacearm worker & worker=$$!; \
-	echo "spacearm API on http://127.0.0.1:8000 (docs at /docs), worker pid $$worker; Ctrl-C stops both"; \
-	wait $$api $$worker
+# The service (`spacearm run`): migrate, then the API on $$SPACEARM_HOST:$$SPACEARM_PORT
+# (127.0.0.1:8000) and one worker; the URL is printed once /readyz answers; Ctrl-C stops both.
+# More options: make run RUN_ARGS='--workers 2 --log-format json' (spacearm run --help).
+run: $(RUN_STAMP)
+	@$(BIN)/spacearm run $(RUN_ARGS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check engine service tests bench

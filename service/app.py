@@ -17,7 +17,7 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 import engine
-from service import errors, openapi, security
+from service import errors, observability, openapi, security
 from service.admission import Admission
 from service.db import Database
 from service.migrate import seed_presets
@@ -99,7 +99,9 @@ class Kernels:
 
     async def _visit_routers(self) -> None:
         """FastAPI prepares each router's routes on the first request that reaches it; send each
-        one a request that changes nothing (unknown ids answer 404), in process."""
+        one a request that changes nothing (unknown ids answer 404), in process (not counted in
+        the metrics)."""
+        observability.UNCOUNTED.set(True)
         keys = self.settings.keys()
         headers = {"authorization": f"Bearer {keys[0]}"} if keys else {}
         transport = httpx.ASGITransport(app=self.app)
@@ -165,6 +167,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.install(app)
     security.install(app, settings)
     openapi.install(app, auth_required=bool(settings.keys()))
+    observability.install(app, auth_required=bool(settings.keys()))
     for module in (health, robots, tasks, plans, shortest, tuning, job_events, landscapes, figures, web, docs):
         app.include_router(module.router)
     app.mount(docs.ASSETS_URL, docs.assets(), name="docs-assets")

@@ -1,62 +1,185 @@
-"""``spacearm migrate | serve | worker``."""
+"""``spacearm migrate | serve | worker | run`` (``spacearm --help`` lists every option and the
+``SPACEARM_*`` environment variables)."""
 
 from __future__ import annotations
 
 import argparse
 import logging
 import sys
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
 
+from service.logs import Say, configure, messenger
 from service.settings import Settings
+
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+
+
+def package_version() -> str:
+    try:
+        return version("spacearm")
+    except PackageNotFoundError:  # pragma: no cover - running from a tree that was never installed
+        return "unknown"
+
+
+def _default(name: str) -> Any:
+    return Settings.model_fields[name].default
+
+
+def environment_help() -> str:
+    """The ``SPACEARM_*`` variables (:class:`Settings`), for the epilog of ``--help``."""
+    lines = ["environment variables (read by every command; options given on the command line win):"]
+    for name, field in Settings.model_fields.items():
+        default = "unset" if field.default is None else field.default
+        if hasattr(default, "get_secret_value"):
+            default = "unset"
+        lines.append(f"  SPACEARM_{name.upper()} (default: {default})")
+        lines.append(f"      {field.description}")
+    return "\n".join(lines)
+
+
+def non_negative(text: str) -> int:
+    number = int(text)
+    if number < 0:
+        raise argparse.ArgumentTypeError(f"{number} is negative")
+    return number
+
+
+def build_parser() -> argparse.ArgumentParser:
+    logs = argparse.ArgumentParser(add_help=False)
+    group = logs.add_argument_group("logging")
+    group.add_argument(
+        "--log-format",
+        choices=["text", "json"],
+        default=None,
+        help=f"log lines as text or as JSON objects (default: $SPACEARM_LOG_FORMAT, else {_default('log_format')})",
+    )
+    group.add_argument(
+        "--log-level",
+        choices=["debug", "info", "warning", "error"],
+        default=None,
+        help=f"lowest level logged (default: $SPACEARM_LOG_LEVEL, else {_default('log_level')})",
+    )
+    group.add_argument(
+        "-v", "--verbose", action="store_true", help="also log Alembic's steps while migrating (default: off; on at debug level)"
+    )
+
+    parser = argparse.ArgumentParser(
+        prog="spacearm",
+        description="spacearm: singularity-robust path planning of free-floating space robots; REST service and GA tuning jobs",
+        epilog=environment_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="command")
+    db_help = f"the database is $SPACEARM_DATABASE_URL (default: {_default('database_url')})"
+
+    m = sub.add_parser(
+        "migrate",
+        parents=[logs],
+        help="upgrade the database to the head revision (Alembic) and add the presets",
+        description=f"Upgrade the database to a revision and add the robot presets; {db_help}.",
+    )
+    m.add_argument("--revision", default="head", help="Alembic revision to upgrade to (default: head)")
+
+    def listen_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--host", default=None, help=f"address to bind (default: $SPACEARM_HOST, else {_default('host')})")
+        p.add_argument(
+            "--port", type=int, default=None, help=f"port to listen on (default: $SPACEARM_PORT, else {_default('port')})"
+        )
+
+    s = sub.add_parser(
+        "serve",
+        parents=[logs],
+        help="run the API (uvicorn, one process)",
+        description=f"Run the API. {db_help}; set SPACEARM_API_KEYS before binding to anything but loopback.",
+    )
+    listen_options(s)
+
+    w = sub.add_parser(
+        "worker",
+        parents=[logs],
+        help="claim and run tuning jobs",
+        description=f"Claim and run tuning jobs from the queue; {db_help}. SIGTERM/Ctrl-C puts a running job back.",
+    )
+    w.add_argument("--once", action="store_true", help="run at most one job, then exit (default: run until stopped)")
+
+    r = sub.add_parser(
+        "run",
+        parents=[logs],
+        help="migrate, then run the API and workers; print the URL once ready (what `make run` does)",
+        description="Migrate the database, start the API and the workers as child processes, print the URL once "
+        f"/readyz answers, and stop them all on Ctrl-C or SIGTERM. {db_help}.",
+    )
+    listen_options(r)
+    r.add_argument("--workers", type=non_negative, default=1, help="worker processes to start (default: 1)")
+    r.add_argument(
+        "--ready-timeout",
+        type=float,
+        default=600.0,
+        help="seconds to wait for /readyz before giving up (default: 600; the first run compiles the kernels, about a minute)",
+    )
+    return parser
+
+
+def display_url(url: str) -> str:
+    """``url`` without its password."""
+    from sqlalchemy.engine import make_url
+
+    return make_url(url).render_as_string(hide_password=True)
+
+
+def migrate(settings: Settings, revision: str, say: Say) -> int:
+    from service.db import Database
+    from service.migrate import MigrationError, seed_presets, upgrade
+
+    try:
+        upgrade(settings.database_url, revision)
+    except MigrationError as exc:
+        say(f"spacearm migrate: {exc}", True)
+        return 1
+    db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
+    seed_presets(db)
+    db.dispose()
+    say(f"database {display_url(settings.database_url)} at {revision}", False)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="spacearm", description="spacearm REST service")
-    sub = parser.add_subparsers(dest="command", required=True)
-    m = sub.add_parser("migrate", help="upgrade the database to the head revision (Alembic)")
-    m.add_argument("--revision", default="head")
-    s = sub.add_parser("serve", help="run the API (uvicorn)")
-    s.add_argument("--host", default=None)
-    s.add_argument("--port", type=int, default=None)
-    w = sub.add_parser("worker", help="claim and run tuning jobs")
-    w.add_argument("--once", action="store_true", help="run at most one job, then exit")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    args = build_parser().parse_args(argv)
     settings = Settings()
+    log_format = args.log_format or settings.log_format
+    log_level = args.log_level or settings.log_level
+    log_config = configure(log_format, log_level, verbose=args.verbose)
+    say = messenger(log_format, f"spacearm.{args.command}")
 
     if args.command == "migrate":
-        from service.db import Database
-        from service.migrate import MigrationError, seed_presets, upgrade
-
-        try:
-            upgrade(settings.database_url, args.revision)
-        except MigrationError as exc:
-            print(f"spacearm migrate: {exc}", file=sys.stderr)
-            return 1
-        db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
-        seed_presets(db)
-        db.dispose()
-        print(f"database {settings.database_url} at {args.revision}")
-        return 0
+        return migrate(settings, args.revision, say)
     if args.command == "serve":
         import uvicorn
 
         from service.app import create_app
-        from service.logs import uvicorn_log_config
 
         host = args.host or settings.host
-        if not settings.keys() and host not in ("127.0.0.1", "localhost", "::1"):
+        if not settings.keys() and host not in LOCAL_HOSTS:
             logging.getLogger("spacearm.api").warning(
                 "authentication is OFF and the API listens on %s: set SPACEARM_API_KEYS before exposing it", host
             )
-        uvicorn.run(
-            create_app(settings), host=host, port=args.port or settings.port, log_level="info", log_config=uvicorn_log_config()
-        )
+        uvicorn.run(create_app(settings), host=host, port=args.port or settings.port, log_level=log_level, log_config=log_config)
         return 0
     if args.command == "worker":
         from service.worker import run_worker
 
         run_worker(settings, once=args.once)
         return 0
+    if args.command == "run":
+        from service.run import child_env, run
+
+        code = migrate(settings, "head", say)
+        if code:
+            return code
+        env = child_env(log_format, log_level)
+        return run(args.host or settings.host, args.port or settings.port, args.workers, args.ready_timeout, env, say)
     return 2
 
 

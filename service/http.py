@@ -63,7 +63,10 @@ class MethodsMiddleware:
             await send({"type": "http.response.body", "body": b""})
             return
         if method == "HEAD":
-            await self.app(dict(scope, method="GET"), receive, _without_body(send))
+            get = dict(scope, method="GET")
+            await self.app(get, receive, _without_body(send))
+            if "route" in get:  # for the metrics' route label (service.observability)
+                scope["route"] = get["route"]
             return
         await self.app(scope, receive, self._complete_allow(scope, send))
 

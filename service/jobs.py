@@ -14,6 +14,7 @@ once the database answers again (retried with backoff), instead of failing it.""
 
 from __future__ import annotations
 
+import contextvars
 import logging
 import random
 import threading
@@ -249,7 +250,8 @@ def run_job(
             if state != "ok":
                 halt(state)
 
-    watcher = threading.Thread(target=watch, name=f"lease-{claim.job_id}", daemon=True)
+    # in a copy of this context: the watcher's log lines carry the job id too
+    watcher = threading.Thread(target=contextvars.copy_context().run, args=(watch,), name=f"lease-{claim.job_id}", daemon=True)
     watcher.start()
     results: list[TuneResult] = []
     evaluations = 0

@@ -4,8 +4,9 @@ future):
 - ``BodyLimitMiddleware``: request bodies over ``SPACEARM_MAX_BODY_BYTES`` (1 MiB) get 413, from
   ``Content-Length`` before anything is read, and by counting the bytes as they arrive when there
   is no ``Content-Length`` (chunked uploads).
-- ``BearerAuthMiddleware``: with ``SPACEARM_API_KEYS`` set, every request under ``/v1`` needs
-  ``Authorization: Bearer <key>`` (401 with ``WWW-Authenticate: Bearer`` otherwise); the web
+- ``BearerAuthMiddleware``: with ``SPACEARM_API_KEYS`` set, every request under ``/v1`` (and to
+  ``/metrics``) needs ``Authorization: Bearer <key>`` (401 with ``WWW-Authenticate: Bearer``
+  otherwise); the web
   pages need a sign-in session (``POST /login``, :mod:`service.sessions`; GETs under ``/v1``
   accept it too). Keys are compared with :func:`hmac.compare_digest` against every configured
   key and never logged. ``/healthz``, ``/readyz``, ``/openapi.json``, ``/docs``, ``/static`` and
@@ -81,7 +82,7 @@ PAGE_PREFIXES = ("/plans/", "/jobs/", "/web/")
 
 
 def _protected(path: str) -> bool:
-    return path == "/v1" or path.startswith("/v1/")
+    return path == "/v1" or path.startswith("/v1/") or path == "/metrics"
 
 
 def _page(path: str) -> bool:

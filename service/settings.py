@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import os
 from functools import lru_cache
+from typing import Literal
 
-from pydantic import Field, SecretStr
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -15,12 +16,19 @@ class Settings(BaseSettings):
     database_url: str = Field(default="sqlite:///./var/spacearm.db", description="SQLAlchemy URL of the database")
     host: str = Field(default="127.0.0.1", description="address the API binds to")
     port: int = Field(default=8000, ge=1, le=65535, description="port the API listens on")
+    log_format: Literal["text", "json"] = Field(
+        default="text",
+        description="log lines as text, or as one JSON object per line (time, level, logger, message, request_id, job_id)",
+    )
+    log_level: Literal["debug", "info", "warning", "error"] = Field(
+        default="info", description="lowest level logged; debug also shows Alembic's migration steps"
+    )
     worker_poll_seconds: float = Field(default=1.0, gt=0, description="how often an idle worker looks for a queued job")
     job_lease_seconds: float = Field(default=60.0, gt=0, description="how long a job stays claimed without a heartbeat")
     job_max_attempts: int = Field(default=3, ge=1, description="claims of one job before it is failed for good")
     sqlite_busy_timeout_ms: int = Field(default=10_000, ge=0, description="SQLite busy timeout")
     api_keys: SecretStr | None = Field(
-        default=None, description="comma-separated bearer keys; set, every /v1 request needs one (never logged)"
+        default=None, description="comma-separated bearer keys; set, every /v1 request (and /metrics) needs one (never logged)"
     )
     max_queued_jobs: int = Field(default=100, ge=1, description="queued tuning jobs beyond which submissions get 429")
     max_body_bytes: int = Field(default=1024 * 1024, ge=1, description="request bodies above this get 413")
@@ -77,6 +85,11 @@ class Settings(BaseSettings):
         description="comma-separated origins (scheme://host[:port]) whose browser pages may call the API (CORS), or `*` "
         "for any; empty: CORS off",
     )
+
+    @field_validator("log_format", "log_level", mode="before")
+    @classmethod
+    def _lower(cls, value: object) -> object:
+        return value.lower() if isinstance(value, str) else value
 
     def pool_size(self) -> int:
         return self.db_pool_size or self.api_threads

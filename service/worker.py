@@ -14,11 +14,14 @@ import threading
 import uuid
 from typing import Any
 
+from sqlalchemy.engine import make_url
+
 from engine import warm_up
 from engine.tuning import MapFn, dask_map
 from service import queue
 from service.db import Database, is_database_fault, unavailable_reason
 from service.jobs import run_job
+from service.logs import JOB_ID
 from service.migrate import seed_presets
 from service.settings import Settings
 
@@ -58,7 +61,8 @@ def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Ev
         dask_client = Client(settings.dask_scheduler)
         map_fn, chunks = dask_map(dask_client), settings.dask_chunks
         log.info("GA evaluation spread over the Dask cluster at %s in %d chunks", settings.dask_scheduler, chunks)
-    log.info("worker %s polling %s every %.2f s", me, settings.database_url, settings.worker_poll_seconds)
+    url = make_url(settings.database_url).render_as_string(hide_password=True)
+    log.info("worker %s polling %s every %.2f s", me, url, settings.worker_poll_seconds)
     processed = 0
     seeded = False
     backoff = 0.0
@@ -83,9 +87,13 @@ def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Ev
                     break
                 stop.wait(settings.worker_poll_seconds)
                 continue
-            log.info("job %s claimed (attempt %d)", claim.job_id, claim.attempts)
-            outcome = run_job(db, claim, settings.job_lease_seconds, stop, map_fn=map_fn, chunks=chunks)
-            log.info("job %s: %s", claim.job_id, outcome)
+            token = JOB_ID.set(claim.job_id)  # every log line of the job carries its id
+            try:
+                log.info("job %s claimed (attempt %d)", claim.job_id, claim.attempts)
+                outcome = run_job(db, claim, settings.job_lease_seconds, stop, map_fn=map_fn, chunks=chunks)
+                log.info("job %s: %s", claim.job_id, outcome)
+            finally:
+                JOB_ID.reset(token)
             processed += 1
             if once:
                 break

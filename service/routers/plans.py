@@ -29,6 +29,7 @@ from service.convert import build_task, clean, field_path, metrics_out, replay_o
 from service.db import Database
 from service.deps import Limit, Offset, PlanId, SessionDep, SessionRoute, SettingsDep, delete_row
 from service.errors import ApiValidationError, NotFoundError, responses
+from service.metrics import count_plan
 from service.models import Plan
 from service.quota import check_quota
 from service.schemas import PLAN_SECTIONS, PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
@@ -172,6 +173,7 @@ def store_plan(
         check_quota(session, settings.storage_quota_bytes, len(row.trajectory_data))
         session.add(row)
         session.commit()  # before the response goes out: a client's next request must see it
+    count_plan(row.method["name"], row.success, row.elapsed_s)
     parts = {"trajectory": trajectory, "replay": row.replay}
     content = wrap(plan_json(plan_summary(row), {name: parts[name] for name in PLAN_SECTIONS if name in sections}))
     return Response(content, status_code=201, media_type="application/json", headers={"Location": f"/v1/plans/{row.id}"})

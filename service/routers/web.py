@@ -34,6 +34,7 @@ from sqlalchemy import select
 from engine.inverses import METHODS
 from service import figures
 from service.deps import JobId, PlanId, SessionRoute, get_db
+from service.logs import REQUEST_ID
 from service.models import Plan, Robot, TuningJob
 from service.routers.tasks import PRESETS
 from service.sessions import CSRF_COOKIE, SESSION_COOKIE, close_session, open_session
@@ -221,6 +222,8 @@ async def _form(request: Request) -> dict[str, str]:
 
 async def _forward(request: Request, path: str, body: dict[str, Any]) -> httpx.Response:
     headers = {k: v for k, v in request.headers.items() if k.lower() in FORWARDED_HEADERS}
+    if (request_id := REQUEST_ID.get()) is not None:  # the given or generated id: one id in both requests' logs
+        headers["x-request-id"] = request_id
     # The form passed check_form (and the session check, with keys configured): the in-process
     # request carries this process's internal token, which never leaves it.
     headers["authorization"] = f"Bearer {request.app.state.internal_token}"

@@ -1,0 +1,215 @@
+"""The command line: ``--version``, ``--help`` for every option, and ``spacearm run`` (what
+``make run`` calls) as a real process: the URL only once ``/readyz`` answers, on the port from
+``SPACEARM_PORT``, Ctrl-C stopping the API and the worker, a clear message when the API dies."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import queue
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from importlib.metadata import version
+from pathlib import Path
+
+import httpx
+import pytest
+
+from service.cli import build_parser
+from service.settings import Settings
+from tests.service.conftest import ROOT, free_port
+
+
+def spacearm(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "service", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120
+    )
+
+
+def test_version_is_the_package_version() -> None:
+    done = spacearm("--version")
+    assert done.returncode == 0
+    assert done.stdout.strip() == f"spacearm {version('spacearm')}"
+
+
+def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return dict(action.choices)
+
+
+def test_every_option_has_help_with_its_default() -> None:
+    parser = build_parser()
+    commands = _subparsers(parser)
+    assert set(commands) == {"migrate", "serve", "worker", "run"}
+    for name, sub in commands.items():
+        for action in sub._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help and "default" in action.help, (name, action.option_strings)
+
+
+def test_help_lists_commands_options_and_environment() -> None:
+    top = spacearm("--help")
+    assert top.returncode == 0
+    for command in ("migrate", "serve", "worker", "run"):
+        assert command in top.stdout
+    for field in Settings.model_fields:  # every setting, with its variable
+        assert f"SPACEARM_{field.upper()}" in top.stdout
+    run = spacearm("run", "--help")
+    assert run.returncode == 0
+    for text in ("--host", "--port", "--workers", "--ready-timeout", "--log-format", "--verbose", "$SPACEARM_PORT", "8000"):
+        assert text in run.stdout, text
+
+
+def test_migrate_keeps_alembic_quiet_unless_asked(tmp_path: Path) -> None:
+    def migrate(name: str, *args: str, **env: str) -> str:
+        inherited = {k: v for k, v in os.environ.items() if k != "SPACEARM_LOG_LEVEL"}
+        environ = {**inherited, "SPACEARM_DATABASE_URL": f"sqlite:///{tmp_path / name}", **env}
+        done = spacearm("migrate", *args, env=environ)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.strip() == f"database sqlite:///{tmp_path / name} at head"
+        return done.stderr
+
+    assert "alembic" not in migrate("quiet.db")
+    for stderr in (migrate("flag.db", "--verbose"), migrate("debug.db", SPACEARM_LOG_LEVEL="debug")):
+        assert "INFO alembic.runtime.migration: Running upgrade  -> 0001" in stderr
+
+
+def test_make_run_installs_the_runtime_only_and_calls_spacearm_run() -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("MAKEFLAGS", "MFLAGS", "MAKELEVEL")}  # not under `make test`'s
+    plan = subprocess.run(
+        ["make", "--no-print-directory", "-n", "-B", "run"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60
+    )
+    assert plan.returncode == 0, plan.stderr
+    assert "pip install --quiet -e .\n" in plan.stdout and "[test]" not in plan.stdout
+    assert plan.stdout.strip().splitlines()[-1].startswith(".venv/bin/spacearm run")
+
+
+class Run:
+    """``spacearm run`` with its stdout and stderr merged, read line by line in a thread."""
+
+    def __init__(self, directory: Path, port: int, *args: str) -> None:
+        env = {
+            **os.environ,
+            "SPACEARM_DATABASE_URL": f"sqlite:///{directory / 'spacearm.db'}",
+            "SPACEARM_PORT": str(port),
+            "SPACEARM_WORKER_POLL_SECONDS": "0.1",
+            "PYTHONUNBUFFERED": "1",
+        }
+        env.pop("SPACEARM_HOST", None)
+        self.popen = subprocess.Popen(
+            [sys.executable, "-m", "service", "run", *args],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: queue.Queue[str | None] = queue.Queue()
+        self.seen: list[str] = []
+        self.ended = False
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.popen.stdout is not None
+        for line in self.popen.stdout:
+            self.lines.put(line.rstrip("\n"))
+        self.lines.put(None)
+
+    def until(self, text: str, timeout: float = 300.0) -> str | None:
+        """The first line containing ``text`` (None if the output ended first)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=1.0)
+            except queue.Empty:
+                continue
+            if line is None:
+                self.ended = True
+                return None
+            self.seen.append(line)
+            if text in line:
+                return line
+        raise AssertionError(f"no line with {text!r} within {timeout} s:\n" + "\n".join(self.seen))
+
+    def rest(self) -> str:
+        self.popen.wait(60)
+        while not self.ended:
+            line = self.lines.get(timeout=10)
+            if line is None:
+                self.ended = True
+            else:
+                self.seen.append(line)
+        return "\n".join(self.seen)
+
+    def stop(self) -> None:
+        if self.popen.poll() is None:
+            self.popen.kill()
+            self.popen.wait(10)
+
+
+@pytest.fixture
+def runs() -> Iterator[list[Run]]:
+    started: list[Run] = []
+    yield started
+    for r in started:
+        r.stop()
+
+
+def _port_open(port: int) -> bool:
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def test_run_prints_the_url_once_ready_and_ctrl_c_stops_everything(tmp_path: Path, runs: list[Run]) -> None:
+    port = free_port()
+    run = Run(tmp_path, port)
+    runs.append(run)
+    url_line = run.until("spacearm API on")
+    assert url_line is not None, "\n".join(run.seen)
+    assert f"http://127.0.0.1:{port}" in url_line
+    # The URL line comes after the API said its kernels were in (the API logs that before /readyz
+    # can answer 200, and both processes write to the same pipe) ...
+    kernels = [i for i, line in enumerate(run.seen) if "spacearm.api: engine kernels ready" in line]
+    assert kernels and kernels[0] < len(run.seen) - 1, "\n".join(run.seen)
+    # ... after the database was migrated, and the API answers at once.
+    assert any("at head" in line for line in run.seen[: kernels[0]])
+    assert httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=5).status_code == 200
+    assert httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=5).status_code == 200
+    assert not any("alembic" in line.lower() for line in run.seen)  # Alembic stays quiet
+
+    run.popen.send_signal(signal.SIGINT)
+    assert run.popen.wait(60) == 0
+    output = run.rest()
+    assert "signal 15: stopping" in output  # the worker got one SIGTERM
+    assert "Shutting down" in output and "Finished server process" in output  # uvicorn's graceful exit
+    assert "force" not in output.lower()
+    assert not _port_open(port)
+
+
+def test_run_says_why_when_the_api_dies_before_it_is_ready(tmp_path: Path, runs: list[Run]) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        run = Run(tmp_path, port, "--log-format", "json")
+        runs.append(run)
+        assert run.until("spacearm API on") is None
+        assert run.popen.wait(60) == 1
+    # --log-format json: every line of the output is a JSON object, spacearm run's own included
+    entries = [json.loads(line) for line in run.rest().splitlines()]
+    messages = [(e["logger"], e["level"], e["message"]) for e in entries]
+    assert any(
+        logger == "spacearm.run" and level == "ERROR" and re.match(r"spacearm run: the API process exited with code [1-9]", m)
+        for logger, level, m in messages
+    ), messages
+    assert any(logger == "uvicorn.error" and "address already in use" in m for logger, _, m in messages)
+    assert ("spacearm.worker", "INFO", "signal 15: stopping after the current generation") in messages  # stopped too
+    assert ("spacearm.run", "INFO", f"database sqlite:///{tmp_path / 'spacearm.db'} at head") in messages
