@@ -173,7 +173,7 @@ def test_submit_tuning_job_and_follow_progress(driver: Any, stack: Stack) -> Non
     form = driver.find_element(By.ID, "job-form")
     # a job of several seconds (the raster scan, a large population), so the page follows it live
     Select(form.find_element(By.NAME, "preset")).select_by_value("raster-patch")
-    for name, value in (("population", "150"), ("generations", "10")):
+    for name, value in (("population", "150"), ("generations", "15")):
         field = form.find_element(By.NAME, name)
         field.clear()
         field.send_keys(value)
@@ -186,7 +186,7 @@ def test_submit_tuning_job_and_follow_progress(driver: Any, stack: Stack) -> Non
     wait_until(driver, lambda d: d.find_element(By.ID, "job-status").text == "succeeded", timeout=120)
     wait_until(driver, lambda d: d.find_elements(By.ID, "job-result-text"))
     assert "DLS baseline" in driver.find_element(By.ID, "job-result-text").text
-    assert driver.find_element(By.ID, "job-progress").text == "generation 20 / 20 (all phases)"
+    assert driver.find_element(By.ID, "job-progress").text == "generation 30 / 30 (all phases)"
     # the figure follows the events: it ends on the final version, having been redrawn on the way
     wait_until(driver, lambda d: d.find_element(By.ID, "convergence").get_attribute("data-version") == "end:succeeded")
     lags = driver.execute_script("return window.spacearmFigureLags")
