@@ -727,10 +727,6 @@ class RasterPath:
         return unit
 
     @property
-    def scan_attitude(self) -> FloatArray:
-        return self._scan.attitude
-
-    @property
     def passes(self) -> int:
         """Passes of the whole scan (``pass_index`` picks one of them)."""
         return len(self._lines)

@@ -157,8 +157,3 @@ def messenger(log_format: LogFormat, logger: str) -> Say:
             print(message, file=sys.stderr if error else sys.stdout, flush=True)
 
     return say
-
-
-def uvicorn_log_config() -> dict[str, Any]:
-    """The text configuration (as before: uvicorn's loggers with the access log redacted)."""
-    return logging_config()
