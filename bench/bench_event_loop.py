@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from engine import make_inverse, paper_task, plan, table1_robot
-from service import jsonio
 from service.convert import trajectory_out
+from service.infra import jsonio
 
 THREADS, BODIES_PER_THREAD, TICK_S = 8, 3, 0.005
 

@@ -15,8 +15,9 @@ import time
 import numpy as np
 
 from engine import CartesianTask, make_inverse, paper_task, plan, table1_robot
-from service import figures, jsonio
+from service import figures
 from service.convert import metrics_out, trajectory_out
+from service.infra import jsonio
 
 DURATION_S, DT_S = 500.0, 0.025
 

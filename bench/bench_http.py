@@ -24,7 +24,7 @@ from typing import Any
 
 import httpx
 
-from service.schemas import PAPER_TASK_EXAMPLE
+from service.schemas.common import PAPER_TASK_EXAMPLE
 
 ROOT = Path(__file__).resolve().parents[1]
 

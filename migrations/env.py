@@ -9,9 +9,9 @@ from __future__ import annotations
 from alembic import context
 from sqlalchemy import text
 
-from service.db import make_engine
+from service.infra.db import make_engine
 from service.models import Base
-from service.settings import Settings
+from service.infra.settings import Settings
 
 config = context.config
 target_metadata = Base.metadata

@@ -17,13 +17,14 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 import engine
-from service import errors, observability, openapi, security
-from service.admission import Admission
-from service.db import Database
-from service.migrate import seed_presets
-from service.retention import Sweeper
-from service.routers import docs, figures, health, job_events, landscapes, plans, robots, shortest, tasks, tuning, web
-from service.settings import Settings
+from service import errors, openapi
+from service.infra import observability, security
+from service.infra.admission import Admission
+from service.infra.db import Database
+from service.infra.migrate import seed_presets
+from service.infra.retention import Sweeper
+from service.infra.settings import Settings
+from service.routers import docs, figures, health, job_events, landscapes, metrics, plans, robots, shortest, tasks, tuning, web
 
 DESCRIPTION = """
 Singularity-robust Cartesian path planning for free-floating space robots.
@@ -167,7 +168,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     errors.install(app)
     security.install(app, settings)
     openapi.install(app, auth_required=bool(settings.keys()))
-    observability.install(app, auth_required=bool(settings.keys()))
+    observability.install(app)
+    app.include_router(metrics.make_router(auth_required=bool(settings.keys())))
     for module in (health, robots, tasks, plans, shortest, tuning, job_events, landscapes, figures, web, docs):
         app.include_router(module.router)
     app.mount(docs.ASSETS_URL, docs.assets(), name="docs-assets")

@@ -9,8 +9,8 @@ import sys
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
-from service.logs import Say, configure, messenger
-from service.settings import Settings
+from service.infra.logs import Say, configure, messenger
+from service.infra.settings import Settings
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 
@@ -130,8 +130,8 @@ def display_url(url: str) -> str:
 
 
 def migrate(settings: Settings, revision: str, say: Say) -> int:
-    from service.db import Database
-    from service.migrate import MigrationError, seed_presets, upgrade
+    from service.infra.db import Database
+    from service.infra.migrate import MigrationError, seed_presets, upgrade
 
     try:
         upgrade(settings.database_url, revision)

@@ -19,10 +19,11 @@ from engine.planner import check_task
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.trajectory import MAX_DURATION_S, start_pose
 from engine.urdf import UrdfError
-from service import jsonio
 from service.errors import ApiValidationError, NotFoundError
+from service.infra import jsonio
 from service.models import Robot
-from service.schemas import ArcPathIn, PathIn, RasterPathIn, RobotParams, RobotUrdfIn, TaskIn, WaypointsPathIn
+from service.schemas.robots import RobotParams, RobotUrdfIn
+from service.schemas.tasks import ArcPathIn, PathIn, RasterPathIn, TaskIn, WaypointsPathIn
 
 
 def clean(value: Any) -> Any:
@@ -383,7 +384,7 @@ def metrics_out(m: Metrics) -> dict[str, Any]:
 
 
 def trajectory_out(r: PlanResult, prismatic: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """The stored and returned trajectory: numpy arrays (written by :mod:`service.jsonio`, NaN as
+    """The stored and returned trajectory: numpy arrays (written by :mod:`service.infra.jsonio`, NaN as
     null). With ``prismatic (n,)`` flags, those joints' columns are NaN in the degree arrays and
     filled (m, m/s) in ``joint_displacements_m`` and ``joint_velocities_m_s``."""
     joints: dict[str, np.ndarray] = {"joint_angles_deg": np.degrees(r.q), "joint_velocities_deg_s": np.degrees(r.qd)}

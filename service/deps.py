@@ -14,10 +14,10 @@ from sqlalchemy import delete
 from sqlalchemy.orm import Session
 from starlette.convertors import Convertor, register_url_convertor
 
-from service.db import Database
 from service.errors import MAX_OFFSET, NotFoundError
+from service.infra.db import Database
+from service.infra.settings import Settings
 from service.models import Base
-from service.settings import Settings
 
 
 class IdConvertor(Convertor[str]):

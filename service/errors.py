@@ -13,7 +13,7 @@ from sqlalchemy.exc import DataError, DBAPIError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.db import DatabaseUnavailableError, is_locked, unavailable_reason
+from service.infra.db import DatabaseUnavailableError, is_locked, unavailable_reason
 
 PROBLEM_JSON = "application/problem+json"
 PROBLEM_BASE = "https://spacearm.example/problems/"

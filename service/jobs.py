@@ -30,10 +30,10 @@ from engine.inverses import METHODS
 from engine.tuning import MapFn, check_bounds, improvement_percent
 from service import queue
 from service.convert import build_task, clean, field_path, metrics_out, resolve_robot
-from service.db import Database, is_database_fault, unavailable_reason
 from service.errors import ApiError, ApiValidationError
+from service.infra.db import Database, is_database_fault, unavailable_reason
 from service.models import TuningJob
-from service.schemas import TuningJobRequest
+from service.schemas.tuning import TuningJobRequest
 
 log = logging.getLogger("spacearm.worker")
 T = TypeVar("T")

@@ -60,7 +60,7 @@ class Plan(Base):
     success: Mapped[bool] = mapped_column(Boolean)
     message: Mapped[str] = mapped_column(Text)
     metrics: Mapped[dict[str, Any]] = mapped_column(JSON)
-    trajectory_data: Mapped[bytes] = mapped_column(LargeBinary)  # service.storage.pack_trajectory
+    trajectory_data: Mapped[bytes] = mapped_column(LargeBinary)  # service.infra.storage.pack_trajectory
     replay: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
     elapsed_s: Mapped[float] = mapped_column(Float)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, index=True)
@@ -93,7 +93,7 @@ class TuningJob(Base):
 
 
 class Landscape(Base):
-    """An objective landscape: ``grids`` holds its arrays (``service.storage``), ``summary`` the rest."""
+    """An objective landscape: ``grids`` holds its arrays (``service.infra.storage``), ``summary`` the rest."""
 
     __tablename__ = "landscapes"
 

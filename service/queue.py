@@ -19,7 +19,7 @@ from typing import Any
 
 from sqlalchemy import and_, or_, select, update
 
-from service.db import Database, retry_locked
+from service.infra.db import Database, retry_locked
 from service.models import TuningJob, utcnow
 
 TERMINAL = ("succeeded", "failed", "cancelled")

@@ -21,7 +21,7 @@ from typing import Any
 
 import httpx
 
-from service.logs import Say
+from service.infra.logs import Say
 
 PR_SET_PDEATHSIG = 1
 logging.getLogger("httpx").setLevel(logging.WARNING)  # our /readyz polls are in the API's access log

@@ -19,11 +19,11 @@ from sqlalchemy.engine import make_url
 from engine import warm_up
 from engine.tuning import MapFn, dask_map
 from service import queue
-from service.db import Database, is_database_fault, unavailable_reason
+from service.infra.db import Database, is_database_fault, unavailable_reason
+from service.infra.logs import JOB_ID
+from service.infra.migrate import seed_presets
+from service.infra.settings import Settings
 from service.jobs import run_job
-from service.logs import JOB_ID
-from service.migrate import seed_presets
-from service.settings import Settings
 
 log = logging.getLogger("spacearm.worker")
 

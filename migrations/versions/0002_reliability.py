@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-from service.storage import pack_trajectory, unpack_trajectory
+from service.infra.storage import pack_trajectory, unpack_trajectory
 
 revision: str = "0002"
 down_revision: str | None = "0001"

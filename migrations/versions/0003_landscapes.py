@@ -1,5 +1,5 @@
 """Objective landscapes: ``landscapes`` holds each computed grid (B, feasibility and peak joint
-speed per cell as a compressed ``.npz``, see ``service.storage``) with its request and summary.
+speed per cell as a compressed ``.npz``, see ``service.infra.storage``) with its request and summary.
 
 Revision ID: 0003
 Revises: 0002

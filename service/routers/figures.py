@@ -19,9 +19,9 @@ from typing_extensions import TypeAliasType
 from service import figures
 from service.deps import JobId, PlanId, SessionRoute
 from service.errors import ApiError, ApiValidationError, NotFoundError, responses
+from service.infra.storage import unpack_trajectory
 from service.models import Plan, Robot, TuningJob
-from service.schemas import RobotParams
-from service.storage import unpack_trajectory
+from service.schemas.robots import RobotParams
 
 router = APIRouter(tags=["figures"], route_class=SessionRoute)
 

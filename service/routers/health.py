@@ -15,11 +15,11 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.dialects import postgresql, sqlite
 
 from service import openapi
-from service.db import Database, unavailable_reason
 from service.deps import SessionRoute
-from service.migrate import current_revision, head_revision
+from service.infra.db import Database, unavailable_reason
+from service.infra.migrate import current_revision, head_revision
 from service.models import ServiceProbe, utcnow
-from service.schemas import Health
+from service.schemas.health import Health
 
 router = APIRouter(tags=["health"], route_class=SessionRoute)
 

@@ -30,9 +30,9 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.sse import EventSourceResponse, ServerSentEvent
 from sqlalchemy import select
 
-from service.db import Database
 from service.deps import JobId, SessionRoute
 from service.errors import ApiValidationError, NotFoundError, responses
+from service.infra.db import Database
 from service.models import TuningJob
 from service.queue import TERMINAL
 from service.routers.tuning import job_phases

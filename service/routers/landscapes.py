@@ -14,18 +14,19 @@ from sqlalchemy.orm import Session
 
 from engine import axis_values, landscape
 from engine.errors import ParameterError
-from service import figures, jsonio
+from service import figures
 from service.convert import build_task, clean, field_path, resolve_robot
-from service.db import Database
 from service.deps import LandscapeId, SessionDep, SessionRoute, SettingsDep, delete_row, load_row
 from service.errors import ApiValidationError, NotFoundError, responses
+from service.infra import jsonio
+from service.infra.db import Database
+from service.infra.quota import check_quota
+from service.infra.settings import Settings
+from service.infra.storage import pack_trajectory, unpack_trajectory
 from service.models import Landscape, TuningJob
-from service.quota import check_quota
 from service.routers.figures import IMAGE_RESPONSES, Format, image_response
 from service.routers.plans import run_admitted
-from service.schemas import LandscapeAxis, LandscapeOut, LandscapeRequest
-from service.settings import Settings
-from service.storage import pack_trajectory, unpack_trajectory
+from service.schemas.landscapes import LandscapeAxis, LandscapeOut, LandscapeRequest
 
 router = APIRouter(prefix="/v1/landscapes", tags=["landscapes"], route_class=SessionRoute)
 

@@ -1,4 +1,4 @@
-"""``GET /metrics``: Prometheus metrics (see :mod:`service.metrics`) in the text format 0.0.4.
+"""``GET /metrics``: Prometheus metrics (see :mod:`service.infra.metrics`) in the text format 0.0.4.
 Outside ``/v1`` (it is not part of the versioned API), but behind the same bearer keys when
 ``SPACEARM_API_KEYS`` is set: it names workers (host and pid) and shows the traffic."""
 

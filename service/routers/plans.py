@@ -1,11 +1,11 @@
 """Synchronous plans. A plan request waits for a slot of the plan admission
-(:mod:`service.admission`: a few plans at once, a short queue, then 503 with ``Retry-After``) on
+(:mod:`service.infra.admission`: a few plans at once, a short queue, then 503 with ``Retry-After``) on
 the event loop, then runs in the thread pool (the engine's kernels release the GIL, so plans run
 in parallel on every core). Reads are plain ``def`` handlers in the thread pool.
 
-Plan bodies are written once, by orjson from the planner's arrays (:mod:`service.jsonio`): the
+Plan bodies are written once, by orjson from the planner's arrays (:mod:`service.infra.jsonio`): the
 trajectory is neither copied into Python lists nor validated again on the way out. Trajectories
-are stored as compressed arrays (:mod:`service.storage`). ``fields`` leaves out the large
+are stored as compressed arrays (:mod:`service.infra.storage`). ``fields`` leaves out the large
 sections."""
 
 from __future__ import annotations
@@ -24,17 +24,17 @@ from sqlalchemy.orm import Session
 from engine import PlanResult, RobotModel, make_inverse, make_secondary, plan, replay
 from engine.errors import ParameterError
 from engine.redundancy import SecondaryObjective
-from service import jsonio
 from service.convert import build_task, clean, field_path, metrics_out, replay_out, resolve_robot, trajectory_out
-from service.db import Database
 from service.deps import Limit, Offset, PlanId, SessionDep, SessionRoute, SettingsDep, delete_row
 from service.errors import ApiValidationError, NotFoundError, responses
-from service.metrics import count_plan
+from service.infra import jsonio
+from service.infra.db import Database
+from service.infra.metrics import count_plan
+from service.infra.quota import check_quota
+from service.infra.settings import Settings
+from service.infra.storage import pack_trajectory, unpack_trajectory
 from service.models import Plan
-from service.quota import check_quota
-from service.schemas import PLAN_SECTIONS, PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
-from service.settings import Settings
-from service.storage import pack_trajectory, unpack_trajectory
+from service.schemas.plans import PLAN_SECTIONS, PlanList, PlanOut, PlanRequest, PlanSummary, ReplayOut
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"], route_class=SessionRoute)
 

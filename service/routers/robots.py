@@ -16,13 +16,13 @@ from sqlalchemy.orm import Session
 from engine import RobotModel, State, generalized_jacobian
 from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
-from service import jsonio
 from service.convert import clean, joint_positions, robot_model, urdf_model
 from service.deps import Limit, Offset, RobotId, SessionDep, SessionRoute, SettingsDep, load_row
 from service.errors import ApiValidationError, ConflictError, responses
+from service.infra import jsonio
+from service.infra.quota import check_quota
 from service.models import Robot
-from service.quota import check_quota
-from service.schemas import JacobianOut, JacobianRequest, JointOut, RobotList, RobotOut, RobotParams, RobotUrdfIn
+from service.schemas.robots import JacobianOut, JacobianRequest, JointOut, RobotList, RobotOut, RobotParams, RobotUrdfIn
 
 router = APIRouter(prefix="/v1/robots", tags=["robots"], route_class=SessionRoute)
 

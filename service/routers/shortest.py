@@ -14,15 +14,15 @@ from sqlalchemy.orm import Session
 from engine import DurationSearch, PlanResult, RobotModel, shortest_duration
 from engine.errors import ParameterError
 from engine.paths import ArcPath
-from service import jsonio
 from service.convert import build_task, clean, resolve_robot
-from service.db import Database
 from service.deps import SessionRoute, SettingsDep
 from service.errors import ApiValidationError, responses
+from service.infra import jsonio
+from service.infra.db import Database
+from service.infra.settings import Settings
 from service.models import Plan
 from service.routers.plans import FieldsQuery, check_method, finish_plan, parse_fields, plan_options, run_admitted, store_plan
-from service.schemas import PlanRequest, ShortestDurationOut, ShortestDurationRequest
-from service.settings import Settings
+from service.schemas.plans import PlanRequest, ShortestDurationOut, ShortestDurationRequest
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"], route_class=SessionRoute)
 

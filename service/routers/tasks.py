@@ -19,16 +19,9 @@ from fastapi import APIRouter, Path
 from engine.trajectory import PAPER_Q0_DEG
 from service.deps import SessionRoute
 from service.errors import NotFoundError, responses
-from service.schemas import (
-    PAPER_TASK_EXAMPLE,
-    MethodIn,
-    PoseIn,
-    RasterPathIn,
-    TaskIn,
-    TaskPreset,
-    TaskPresetList,
-    WaypointsPathIn,
-)
+from service.schemas.common import PAPER_TASK_EXAMPLE
+from service.schemas.methods import MethodIn
+from service.schemas.tasks import PoseIn, RasterPathIn, TaskIn, TaskPreset, TaskPresetList, WaypointsPathIn
 
 router = APIRouter(prefix="/v1/task-presets", tags=["tasks"], route_class=SessionRoute)
 

@@ -11,21 +11,22 @@ from sqlalchemy import delete, func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from service import jsonio, queue
+from service import queue
 from service.convert import resolve_robot
-from service.db import Database
 from service.deps import JobId, Limit, Offset, SessionDep, SessionRoute, SettingsDep, load_row
 from service.errors import ApiValidationError, ConflictError, TooManyRequestsError, responses
+from service.infra import jsonio
+from service.infra.db import Database
+from service.infra.quota import check_quota
 from service.jobs import MAX_JOB_JOINT_STEPS, validate_request
 from service.models import TuningJob
-from service.quota import check_quota
-from service.schemas import (
+from service.schemas.common import JobStatus
+from service.schemas.tuning import (
     GASettings,
     HistoryRecord,
     JobLinks,
     JobPhase,
     JobProgress,
-    JobStatus,
     PhaseRole,
     TuningJobList,
     TuningJobOut,

@@ -6,7 +6,7 @@ The forms post to ``/web/...``; those handlers check the form's CSRF token and i
 (:func:`check_form`), then forward the request to the JSON API in-process
 (``httpx.ASGITransport`` on this same app), so the page goes through exactly the validation and
 limits of ``POST /v1/plans`` and ``POST /v1/tuning-jobs``. With keys configured, the pages need
-a sign-in session (:mod:`service.sessions`). All routes here are left out of the OpenAPI
+a sign-in session (:mod:`service.infra.sessions`). All routes here are left out of the OpenAPI
 document.
 
 CSRF: every form carries a token. Signed in, it is the session's own token (kept server-side);
@@ -34,10 +34,10 @@ from sqlalchemy import select
 from engine.inverses import METHODS
 from service import figures
 from service.deps import JobId, PlanId, SessionRoute, get_db
-from service.logs import REQUEST_ID
+from service.infra.logs import REQUEST_ID
+from service.infra.sessions import CSRF_COOKIE, SESSION_COOKIE, close_session, open_session
 from service.models import Plan, Robot, TuningJob
 from service.routers.tasks import PRESETS
-from service.sessions import CSRF_COOKIE, SESSION_COOKIE, close_session, open_session
 
 router = APIRouter(include_in_schema=False, route_class=SessionRoute)
 
@@ -282,7 +282,7 @@ def login_page(request: Request, next: str = "/") -> HTMLResponse:
 
 @router.post("/login")
 async def login(request: Request) -> Response:
-    """Check a key and open a session (:mod:`service.sessions`): the cookie holds the session's
+    """Check a key and open a session (:mod:`service.infra.sessions`): the cookie holds the session's
     random token (HttpOnly, SameSite=Strict, Secure when configured), never the key."""
     form = await _form(request)
     target = _local(form.get("next", "/"))

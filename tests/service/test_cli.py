@@ -23,7 +23,7 @@ import httpx
 import pytest
 
 from service.cli import build_parser
-from service.settings import Settings
+from service.infra.settings import Settings
 from tests.service.conftest import ROOT, free_port
 
 

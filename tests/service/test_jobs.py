@@ -8,7 +8,7 @@ from collections.abc import Callable
 import httpx
 from sqlalchemy import text
 
-from service.db import make_engine
+from service.infra.db import make_engine
 from tests.service.conftest import PAPER_TASK, Stack, job_body, wait_for, wait_status
 
 # A job long enough to be interrupted (about 0.03 s per generation, 1000 generations, twice).

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from sqlalchemy import inspect, text
 
-from service.db import make_engine
-from service.migrate import MigrationError, current_revision, downgrade, head_revision, upgrade
-from service.storage import unpack_trajectory
+from service.infra.db import make_engine
+from service.infra.migrate import MigrationError, current_revision, downgrade, head_revision, upgrade
+from service.infra.storage import unpack_trajectory
 
 ROOT = Path(__file__).resolve().parents[2]
 TABLES = {"robots", "plans", "tuning_jobs", "web_sessions", "service_probes", "landscapes"}

@@ -16,8 +16,8 @@ from engine.inverses import METHODS
 from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS
 from engine.paths import PATH_TYPES, PROFILES
 from service.app import create_app
+from service.infra.settings import Settings
 from service.openapi import reached_schemas, schema_refs
-from service.settings import Settings
 
 #: Response fields that may really be absent, and why.
 OPTIONAL_IN_RESPONSES = {

@@ -11,8 +11,8 @@ from collections.abc import Callable
 from sqlalchemy import inspect
 
 from service import queue
-from service.db import Database, make_engine
-from service.migrate import current_revision, downgrade, head_revision, upgrade
+from service.infra.db import Database, make_engine
+from service.infra.migrate import current_revision, downgrade, head_revision, upgrade
 from service.models import TuningJob
 from tests.service.conftest import PAPER_TASK, Stack, wait_for
 from tests.service.conftest_pg import pg_url, postgres_url  # noqa: F401  (fixtures)

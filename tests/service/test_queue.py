@@ -8,8 +8,8 @@ import time
 from pathlib import Path
 
 from service import queue
-from service.db import Database
-from service.migrate import upgrade
+from service.infra.db import Database
+from service.infra.migrate import upgrade
 from service.models import TuningJob
 
 

@@ -38,10 +38,10 @@ from fastapi.testclient import TestClient
 
 import engine
 from engine.kernels.jit import CACHE_DIR, source_hash
-from service import jsonio
 from service.app import create_app
-from service.migrate import upgrade
-from service.settings import Settings
+from service.infra import jsonio
+from service.infra.migrate import upgrade
+from service.infra.settings import Settings
 from tests.service.conftest import PAPER_TASK, ROOT, Stack, job_body, wait_for, wait_status
 
 PROBLEM = "application/problem+json"

@@ -12,8 +12,8 @@ from fastapi.testclient import TestClient
 
 import engine
 from service.app import create_app
-from service.migrate import upgrade
-from service.settings import Settings
+from service.infra.migrate import upgrade
+from service.infra.settings import Settings
 
 
 def _app(tmp_path: Path) -> TestClient:

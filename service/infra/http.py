@@ -65,7 +65,7 @@ class MethodsMiddleware:
         if method == "HEAD":
             get = dict(scope, method="GET")
             await self.app(get, receive, _without_body(send))
-            if "route" in get:  # for the metrics' route label (service.observability)
+            if "route" in get:  # for the metrics' route label (service.infra.observability)
                 scope["route"] = get["route"]
             return
         await self.app(scope, receive, self._complete_allow(scope, send))

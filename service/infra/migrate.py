@@ -23,7 +23,7 @@ from sqlalchemy import Engine, func, inspect, select, table, text
 from sqlalchemy.exc import IntegrityError
 
 import migrations
-from service.db import Database, ensure_sqlite_dir, make_engine
+from service.infra.db import Database, ensure_sqlite_dir, make_engine
 from service.models import Base, Robot
 
 if TYPE_CHECKING:

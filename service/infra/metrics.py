@@ -1,7 +1,7 @@
 """Prometheus metrics (prometheus-client), of two kinds:
 
 - **Per process** (counters and histograms in this process's memory): HTTP requests and their
-  latency by method, route template and status (:class:`service.observability.ObservabilityMiddleware`),
+  latency by method, route template and status (:class:`service.infra.observability.ObservabilityMiddleware`),
   plans computed by method and success, and the process's own CPU, memory and file descriptors.
   With several API processes each one is scraped as a target of its own and the sums are taken
   in the queries (``sum by (route) (rate(spacearm_http_requests_total[5m]))``).
@@ -44,7 +44,7 @@ from prometheus_client.registry import Collector
 from prometheus_client.utils import floatToGoString
 from sqlalchemy import func, select
 
-from service.db import Database
+from service.infra.db import Database
 from service.models import TuningJob, utcnow
 from service.queue import TERMINAL
 

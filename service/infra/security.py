@@ -7,11 +7,11 @@ future):
 - ``BearerAuthMiddleware``: with ``SPACEARM_API_KEYS`` set, every request under ``/v1`` (and to
   ``/metrics``) needs ``Authorization: Bearer <key>`` (401 with ``WWW-Authenticate: Bearer``
   otherwise); the web
-  pages need a sign-in session (``POST /login``, :mod:`service.sessions`; GETs under ``/v1``
+  pages need a sign-in session (``POST /login``, :mod:`service.infra.sessions`; GETs under ``/v1``
   accept it too). Keys are compared with :func:`hmac.compare_digest` against every configured
   key and never logged. ``/healthz``, ``/readyz``, ``/openapi.json``, ``/docs``, ``/static`` and
   ``/login`` stay open.
-- ``MethodsMiddleware`` (:mod:`service.http`): HEAD and OPTIONS everywhere, complete ``Allow``.
+- ``MethodsMiddleware`` (:mod:`service.infra.http`): HEAD and OPTIONS everywhere, complete ``Allow``.
 - ``CORSMiddleware`` (Starlette's), only with ``SPACEARM_CORS_ORIGINS``: pages of those origins
   may call the API. It answers preflights itself, outside the bearer check (a preflight carries no
   credentials) and outside ``MethodsMiddleware`` (which answers a plain ``OPTIONS`` with ``Allow``
@@ -33,9 +33,9 @@ from starlette.responses import RedirectResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.errors import BodyTooLargeError, field_error, problem
-from service.http import MethodsMiddleware
-from service.sessions import SESSION_COOKIE, find_session
-from service.settings import Settings
+from service.infra.http import MethodsMiddleware
+from service.infra.sessions import SESSION_COOKIE, find_session
+from service.infra.settings import Settings
 
 log = logging.getLogger("spacearm.api")
 
@@ -101,7 +101,7 @@ def cookie_value(scope: Scope, name: str) -> str:
 
 
 class BearerAuthMiddleware:
-    """Bearer keys for ``/v1``; sign-in sessions (:mod:`service.sessions`) for the pages and for
+    """Bearer keys for ``/v1``; sign-in sessions (:mod:`service.infra.sessions`) for the pages and for
     reads under ``/v1``. ``internal_token`` is a per-process random key that only in-process
     requests (the web forms forwarding to the API after their CSRF check) can know."""
 

@@ -16,7 +16,7 @@ from datetime import timedelta
 from sqlalchemy import delete
 from sqlalchemy.orm import Session
 
-from service.db import Database
+from service.infra.db import Database
 from service.models import WebSession, utcnow
 
 SESSION_COOKIE = "spacearm_session"

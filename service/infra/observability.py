@@ -4,8 +4,8 @@ counted).
 
 - ``X-Request-ID``: taken from the request when it is 1 to 128 printable ASCII characters
   (``!`` to ``~``), a new ``uuid4().hex`` otherwise; echoed on every response and set in
-  :data:`service.logs.REQUEST_ID` for the request's log lines (the access log's too).
-- :data:`service.metrics.HTTP_REQUESTS` / ``HTTP_SECONDS``: by method, route template
+  :data:`service.infra.logs.REQUEST_ID` for the request's log lines (the access log's too).
+- :data:`service.infra.metrics.HTTP_REQUESTS` / ``HTTP_SECONDS``: by method, route template
   (``/v1/plans/{plan_id}``, never the raw path: ids would make a series each) and status;
   requests that reach no route (unknown paths, answers of the guards before routing: 400, 401,
   413, OPTIONS) count under the route ``<unrouted>``.
@@ -23,9 +23,8 @@ from fastapi import FastAPI
 from starlette.routing import BaseRoute, Match, Mount, Route
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service import metrics
-from service.logs import REQUEST_ID
-from service.routers.metrics import make_router
+from service.infra import metrics
+from service.infra.logs import REQUEST_ID
 
 HEADER = b"x-request-id"
 VALID_ID = re.compile(rb"[\x21-\x7e]{1,128}")
@@ -102,11 +101,11 @@ class ObservabilityMiddleware:
         metrics.HTTP_SECONDS.labels(*labels).observe(time.perf_counter() - start)
 
 
-def install(app: FastAPI, auth_required: bool) -> None:
+def install(app: FastAPI) -> None:
     """Wrap ``app``'s whole middleware stack (built on its first request) in
-    :class:`ObservabilityMiddleware`; serve ``GET /metrics`` from the app's registry."""
+    :class:`ObservabilityMiddleware`; the app's metrics registry (served by ``GET /metrics``,
+    :mod:`service.routers.metrics`)."""
     app.state.metrics_registry = metrics.registry_for(lambda: getattr(app.state, "db", None))
-    app.include_router(make_router(auth_required))
     build = app.build_middleware_stack
 
     def build_observed() -> Any:

@@ -10,7 +10,7 @@ from datetime import datetime, timedelta
 
 from sqlalchemy import delete
 
-from service.db import Database, is_database_fault, retry_locked
+from service.infra.db import Database, is_database_fault, retry_locked
 from service.models import Landscape, Plan, TuningJob, utcnow
 from service.queue import TERMINAL
 

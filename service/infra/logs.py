@@ -7,7 +7,7 @@
   ``path``, ``http_version`` and ``status_code``.
 
 The request id and the job id come from context variables (:data:`REQUEST_ID`, set per request by
-:class:`service.observability.ObservabilityMiddleware`; :data:`JOB_ID`, set by the worker around a
+:class:`service.infra.observability.ObservabilityMiddleware`; :data:`JOB_ID`, set by the worker around a
 job), copied onto every record by :class:`ContextFilter` on the handlers, so every line logged
 while a request (or a job) is handled carries its id, uvicorn's access log included (uvicorn logs
 it from the request's own task). Secrets in query strings are redacted from the access log

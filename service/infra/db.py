@@ -35,7 +35,7 @@ from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from sqlalchemy.orm import Session, sessionmaker
 
-from service import jsonio
+from service.infra import jsonio
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -163,7 +163,7 @@ def make_engine(
     parsed = make_url(url)
     path = sqlite_path(parsed)
     is_sqlite = parsed.get_backend_name() == "sqlite"
-    # JSON columns through orjson (see service.jsonio), NaN and infinities as null.
+    # JSON columns through orjson (see service.infra.jsonio), NaN and infinities as null.
     kwargs: dict[str, Any] = {
         "json_serializer": jsonio.dumps_text,
         "json_deserializer": jsonio.loads,

@@ -1,0 +1,203 @@
+"""GA tuning jobs: the request, progress, phases and result."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal, get_args
+
+from pydantic import (
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+)
+from typing_extensions import TypeAliasType
+
+from engine.tuning import MAX_BITS_PER_GENE, MAX_GENERATIONS, MAX_POPULATION
+from service.schemas.common import (
+    AGGREGATION_DESCRIPTION,
+    MAX_MAGNITUDE,
+    PAPER_TASK_EXAMPLE,
+    SINGULAR_VALUE_UNITS,
+    AggregationName,
+    AttitudeTerm,
+    Input,
+    JobStatus,
+    OneRobot,
+    Output,
+    TaskAggregationName,
+    TunableMethodName,
+    Weights,
+)
+from service.schemas.methods import MethodBounds, MethodParams
+from service.schemas.plans import PlanMetrics
+from service.schemas.robots import RobotParams
+from service.schemas.tasks import TaskIn
+
+# --- tuning jobs --------------------------------------------------------------------------
+
+
+class GASettings(Input):
+    """The paper's binary-coded genetic algorithm (DEAP)."""
+
+    population: int = Field(default=40, ge=2, le=MAX_POPULATION, description="individuals per generation")
+    generations: int = Field(default=50, ge=1, le=MAX_GENERATIONS, description="generations after the initial population")
+    crossover_probability: float = Field(default=0.8, ge=0, le=1, description="probability that a pair is crossed over")
+    mutation_probability: float = Field(default=0.02, ge=0, le=1, description="per-bit flip probability")
+    bits_per_gene: int = Field(
+        default=16, ge=2, le=MAX_BITS_PER_GENE, description="bits coding each parameter over its search interval"
+    )
+    elitism: int = Field(default=1, ge=0, description="best individuals kept unchanged; < population")
+    seed: int | None = Field(default=0, ge=0, le=2**63 - 1, description="null for a random seed")
+
+    @field_validator("elitism")
+    @classmethod
+    def _elitism_below_population(cls, value: int, info: ValidationInfo) -> int:
+        population = info.data.get("population")
+        if population is not None and value >= population:
+            raise ValueError(f"must be smaller than population ({population})")
+        return value
+
+
+class ObjectiveSettings(Input):
+    """The objective B the GA minimises (paper eq. 18), per task, then over the tasks."""
+
+    weights: Weights = [0.5, 0.5]  # noqa: RUF012 (a pydantic field: copied per instance)
+    aggregation: AggregationName = Field(default="max", description=AGGREGATION_DESCRIPTION)
+    attitude_term: AttitudeTerm = "eq18"
+    task_aggregation: TaskAggregationName = Field(
+        default="mean", description="how the tasks' B combine: `mean` or `max` (the worst task)"
+    )
+
+
+class TuningJobRequest(OneRobot):
+    model_config = ConfigDict(
+        allow_inf_nan=False,
+        json_schema_extra={
+            "examples": [
+                {
+                    "robot_id": "table1",
+                    "tasks": [PAPER_TASK_EXAMPLE],
+                    "method": "adaptive",
+                    "bounds": {"lambda_max": [0.0001, 0.2], "epsilon": [0.0001, 1.0]},
+                    "ga": {
+                        "population": 40,
+                        "generations": 50,
+                        "crossover_probability": 0.8,
+                        "mutation_probability": 0.02,
+                        "bits_per_gene": 16,
+                        "elitism": 1,
+                        "seed": 1,
+                    },
+                    "objective": {"weights": [0.5, 0.5], "aggregation": "max", "attitude_term": "eq18"},
+                    "compare_with_dls": True,
+                }
+            ]
+        },
+    )
+
+    # Optional but not nullable: left out when not used (a null is refused like any wrong type).
+    robot_id: str = Field(  # type: ignore[assignment]
+        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
+    )
+    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
+    tasks: list[TaskIn] = Field(min_length=1, max_length=20, description="the tasks B is evaluated on")
+    method: TunableMethodName = Field(default="adaptive", description="the inverse to tune (a method with parameters)")
+    bounds: MethodBounds | None = Field(
+        default=None, description="search interval [lo, hi] per parameter; missing parameters take the default bounds"
+    )
+    ga: GASettings = Field(default_factory=GASettings, description="the genetic algorithm's settings")
+    objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings, description="the objective B")
+    feedback_gain: float = Field(default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback")
+    compare_with_dls: bool = Field(default=True, description="also tune constant-damping DLS with the same GA settings")
+
+
+class HistoryRecord(Output):
+    generation: int = Field(description="the generation (0: the initial population)")
+    best: float | None = Field(description="best objective B so far (null while nothing is feasible)")
+    mean: float | None = Field(description="mean B of this generation's feasible individuals (null if none)")
+    feasible: int = Field(description="feasible individuals in this generation (within the joint speed limit)")
+
+
+PhaseRole = TypeAliasType("PhaseRole", Literal["tuned", "dls_baseline"])
+PhaseName = TypeAliasType("PhaseName", Literal["dls", "adaptive", "wdls", "sdls", "svf", "done"])
+assert list(get_args(PhaseName.__value__)) == [*get_args(TunableMethodName.__value__), "done"]
+
+
+class JobPhase(Output):
+    """One GA run of a job: the tuned method, then (with ``compare_with_dls``) the DLS baseline."""
+
+    name: TunableMethodName = Field(description="the method this GA tunes")
+    role: PhaseRole = Field(description="`tuned` (the job's method) or `dls_baseline`")
+    generations: int = Field(description="generations of this GA (after the initial population)")
+    completed: int = Field(description="generations of this GA finished so far (0 to `generations`)")
+    history: list[HistoryRecord] = Field(description="one record per finished generation, from the initial population (0)")
+
+
+class JobProgress(Output):
+    generation: int = Field(default=0, description="generations finished, summed over the phases")
+    generations: int = Field(default=0, description="generations of the whole job, summed over the phases")
+    evaluations: int = Field(default=0, description="plans run so far (repeated genomes are not planned again)")
+    best_objective_b: float | None = Field(default=None, description="best B of the running phase so far")
+    best_params: MethodParams | None = Field(default=None, description="parameters of that best B (null before the first)")
+    phase: PhaseName | None = Field(
+        default=None, description="the running phase's method, `done` once finished; null while queued"
+    )
+    phases: list[JobPhase] = Field(default_factory=list, description="each GA of the job with its history")
+
+
+class JobLinks(Output):
+    model_config = ConfigDict(populate_by_name=True)
+
+    self_: str = Field(alias="self", description="this job")
+    result: str = Field(description="its result (409 until it succeeded)")
+    events: str = Field(description="its Server-Sent Events (status changes and generations, live)")
+    convergence_figure: str = Field(description="its convergence figure (paper Fig. 7), SVG; `?format=png` for PNG")
+
+
+class TuningJobOut(Output):
+    id: str = Field(description="the job's id (32 hex digits)")
+    status: JobStatus = Field(description="queued, then running, then succeeded, failed or cancelled")
+    robot_id: str | None = Field(description="the stored robot tuned for; null for an inline robot")
+    method: TunableMethodName = Field(description="the method being tuned")
+    progress: JobProgress = Field(description="how far the GA is")
+    attempts: int = Field(description="times a worker claimed the job")
+    max_attempts: int = Field(description="claims before the job is failed for good")
+    cancel_requested: bool = Field(description="a cancellation was asked for")
+    error: str | None = Field(description="why the job failed; null otherwise")
+    created_at: datetime = Field(description="when it was submitted (UTC)")
+    started_at: datetime | None = Field(description="when a worker last claimed it (UTC); null while queued")
+    finished_at: datetime | None = Field(description="when it ended (UTC); null until then")
+    links: JobLinks = Field(description="where the job's result, events and figure are")
+
+
+class TuningJobList(Output):
+    items: list[TuningJobOut] = Field(description="this page of jobs, newest first")
+    total: int = Field(description="number of jobs (with the status asked for)")
+
+
+class DLSBaseline(Output):
+    lambda_: float | None = Field(
+        alias="lambda", serialization_alias="lambda", description=f"the tuned DLS damping, {SINGULAR_VALUE_UNITS}"
+    )
+    objective_b: float | None = Field(description="B of the tuned DLS")
+    warnings: list[str] = Field(default_factory=list, description="e.g. the tuned lambda on a search bound")
+
+    model_config = ConfigDict(populate_by_name=True)
+
+
+class TuningJobResult(Output):
+    best_params: MethodParams = Field(description="the tuned parameters (those of the method)")
+    best_objective_b: float | None = Field(description="their B; null if no individual was feasible")
+    best_metrics: list[PlanMetrics] = Field(description="metrics of the best parameters, one per task")
+    history: list[HistoryRecord] = Field(description="one row per generation of the tuned method")
+    evaluations: int = Field(description="plans evaluated")
+    elapsed_s: float = Field(description="time the GA took, s")
+    dls_baseline: DLSBaseline | None = Field(description="DLS tuned with the same GA settings; null without `compare_with_dls`")
+    improvement_over_dls_percent: float | None = Field(
+        description="how much lower B is than the tuned DLS's, percent; null without a baseline"
+    )
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="e.g. a tuned parameter on a search bound, where the optimum may lie beyond it: widen that bound",
+    )
