@@ -6,26 +6,14 @@ numpy and scipy, numba for the compiled kernels (:mod:`engine.kernels`), DEAP fo
 or database code. SI units and radians throughout.
 """
 
-from engine.inverses import (
-    METHODS,
-    AdaptiveDamping,
-    DampedLeastSquares,
-    InverseStep,
-    PlainInverse,
-    RobustInverse,
-    SelectivelyDampedLS,
-    SingularValueFiltering,
-    WeightedDLS,
-    make_inverse,
-    method_names,
-)
+from engine.inverses import METHODS, Inverse, InverseStep, Method, Param, make_inverse, method_names
 from engine.jacobian import GJMResult, generalized_jacobian
 from engine.kinematics import ForwardKinematics, State, forward_kinematics
 from engine.landscape import Landscape, axis_values, landscape
-from engine.metrics import BatchMetrics, Metrics
+from engine.metrics import Metrics, Objective
 from engine.model import RobotModel, table1_robot, urdf_robot
 from engine.paths import PATH_TYPES, ArcPath, LinePath, Path, RasterPath, WaypointPath, make_path
-from engine.planner import BatchResult, PlanResult, plan, plan_batch
+from engine.planner import BatchResult, PlanOptions, PlanResult, PlanSetup, plan, plan_batch, run_plan
 from engine.redundancy import JointCentering, MinBaseRotation, make_secondary
 from engine.replay import ReplayResult, replay
 from engine.shortest import DurationSearch, shortest_duration
@@ -36,36 +24,34 @@ from engine.warmup import warm_up
 __all__ = [
     "METHODS",
     "PATH_TYPES",
-    "AdaptiveDamping",
     "ArcPath",
-    "BatchMetrics",
     "BatchResult",
     "CartesianTask",
     "Comparison",
-    "DampedLeastSquares",
     "DurationSearch",
     "ForwardKinematics",
     "GJMResult",
+    "Inverse",
     "InverseStep",
     "JointCentering",
     "Landscape",
     "LinePath",
+    "Method",
     "Metrics",
     "MinBaseRotation",
+    "Objective",
+    "Param",
     "Path",
-    "PlainInverse",
+    "PlanOptions",
     "PlanResult",
+    "PlanSetup",
     "RasterPath",
     "ReplayResult",
     "RobotModel",
-    "RobustInverse",
-    "SelectivelyDampedLS",
-    "SingularValueFiltering",
     "State",
     "TuneProgress",
     "TuneResult",
     "WaypointPath",
-    "WeightedDLS",
     "axis_values",
     "compare",
     "forward_kinematics",
@@ -79,6 +65,7 @@ __all__ = [
     "plan",
     "plan_batch",
     "replay",
+    "run_plan",
     "shortest_duration",
     "table1_robot",
     "tune",

@@ -18,6 +18,10 @@ class ParameterError(ValueError):
         self.field = field
         self.reason = reason
 
+    def within(self, prefix: str) -> ParameterError:
+        """The same error named inside ``prefix`` (``q0[2]`` within ``task`` is ``task.q0[2]``)."""
+        return ParameterError(f"{prefix}.{self.field}", self.reason)
+
 
 def finite_array(value: Any, shape: tuple[int, ...], field: str) -> NDArray[np.float64]:
     """``value`` as a read-only float array of ``shape`` with every number finite."""

@@ -1,31 +1,38 @@
-"""Singularity-robust inverses of the GJM: one protocol, small frozen strategies.
+"""Singularity-robust inverses of the GJM: methods declared as data, one generic strategy.
 
 Every strategy maps a Jacobian ``J (..., p, n)`` and a task velocity ``xdot (..., p)`` to joint
 rates ``qd (..., n)``: ``p = 6`` rows for a twist ``[v; w]``, ``p = 3`` for a linear velocity (a
-task that tracks the position only). Parameters may be scalars or arrays of shape ``(B,)`` matching a leading
-batch axis, so one strategy object evaluates a whole GA population at once.
+task that tracks the position only). Parameters may be scalars or arrays of shape ``(B,)``
+matching a leading batch axis, so one strategy object evaluates a whole GA population at once.
 
-The strategies are descriptions (a method number and its parameters); the mathematics lives
-once, in the compiled kernels of :mod:`engine.kernels.inverse` (the filters of the singular
-values, ``qd = sum_i f(sigma_i) v_i u_i^T xdot``) and :mod:`engine.kernels.svd` (the thin SVD),
-which the planner runs too. Each reports an *effective damping* per singular direction,
-``lambda_i = sqrt(sigma_i / f_i - sigma_i^2)``: the constant-damping value that would give the
-same gain (0 means undamped; for DLS it is the damping itself).
+A method is a row of :data:`REGISTRY` (in the style of mink's ``Task``: a name, the kernel's
+filter number, its parameters with defaults, valid ranges, GA search bounds and units); the API's
+method names, parameter models and search bounds, the figures' singular-region threshold and the
+README's table are all derived from it, so a new method is its kernel filter and its row here.
+The mathematics lives once, in the compiled kernels of :mod:`engine.kernels.inverse` (the filters
+of the singular values, ``qd = sum_i f(sigma_i) v_i u_i^T xdot``) and :mod:`engine.kernels.svd`
+(the thin SVD), which the planner runs too. Each reports an *effective damping* per singular
+direction, ``lambda_i = sqrt(sigma_i / f_i - sigma_i^2)``: the constant-damping value that would
+give the same gain (0 means undamped; for DLS it is the damping itself).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar, NamedTuple, Protocol
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from engine.errors import ParameterError
-from engine.kernels import inverse as inverse_kernels
+from engine.kernels import inverse as kernels
 from engine.kernels import svd as svd_kernels
 from engine.spatial import FloatArray
+
+#: The unit of damping parameters and singular-value thresholds: that of the GJM's singular values
+#: (the GJM maps joint rates in rad/s to [v (m/s); w (rad/s)]).
+SINGULAR = "singular-value units"
 
 
 class SVD(NamedTuple):
@@ -63,34 +70,15 @@ class InverseStep(NamedTuple):
     damping: FloatArray
 
 
-class RobustInverse(Protocol):
-    """A strategy mapping an end-effector twist to joint rates."""
-
-    name: ClassVar[str]
-    method_id: ClassVar[int]
-
-    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
-        """Joint rates for ``J (..., p, n)``, ``xdot (..., p)``."""
-        ...
-
-    def params(self) -> dict[str, Any]:
-        """Public parameter names (as accepted by :func:`make_inverse`) and values."""
-        ...
-
-    def kernel_params(self) -> tuple[FloatArray | float, ...]:
-        """Parameter values in the kernel's order (scalars or ``(B,)`` arrays)."""
-        ...
-
-
-def kernel_param_rows(inverse: RobustInverse, batch: int) -> FloatArray:
+def kernel_param_rows(inverse: Inverse, batch: int) -> FloatArray:
     """The strategy's parameters as the kernel's ``(batch, MAX_PARAMS)`` rows."""
-    rows = np.zeros((batch, inverse_kernels.MAX_PARAMS))
+    rows = np.zeros((batch, kernels.MAX_PARAMS))
     for i, value in enumerate(inverse.kernel_params()):
         rows[:, i] = value if isinstance(value, float) else np.broadcast_to(np.asarray(value, dtype=float), (batch,))
     return rows
 
 
-def solve(inverse: RobustInverse, J: ArrayLike, xdot: ArrayLike) -> InverseStep:
+def solve(inverse: Inverse, J: ArrayLike, xdot: ArrayLike) -> InverseStep:
     """``inverse`` applied to ``J (..., p, n)`` and ``xdot (..., p)`` (leading axes broadcast;
     array parameters run along the flattened leading axes)."""
     J_arr = np.asarray(J, dtype=float)
@@ -101,162 +89,119 @@ def solve(inverse: RobustInverse, J: ArrayLike, xdot: ArrayLike) -> InverseStep:
     x_flat = np.require(np.broadcast_to(x_arr, lead + (p,)).reshape(-1, p), np.float64, ["C", "W"])
     m = min(p, n)
     qd, damping, s = np.empty((batch, n)), np.empty((batch, m)), np.empty((batch, m))
-    inverse_kernels.solve_many(inverse.method_id, kernel_param_rows(inverse, batch), flat, x_flat, qd, damping, s)
+    kernels.solve_many(inverse.method_id, kernel_param_rows(inverse, batch), flat, x_flat, qd, damping, s)
     return InverseStep(qd.reshape(lead + (n,)), damping.reshape(lead + (m,)))
 
 
 @dataclass(frozen=True)
-class PlainInverse:
-    """Undamped inverse (paper eq. 3): ``qd = J^-1 xdot`` for a square GJM, the Moore-Penrose
-    pseudo-inverse otherwise, both from the SVD (singular values below ``rcond sigma_1`` are
-    dropped). Joint rates are unbounded near singularities."""
+class Param:
+    """A public parameter of an inverse method: its valid range, default, GA search bounds and
+    unit (``SINGULAR`` for the units of the GJM's singular values)."""
 
-    name: ClassVar[str] = "inverse"
-    method_id: ClassVar[int] = inverse_kernels.PLAIN
-    rcond: float = 1e-12
-
-    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
-        return solve(self, J, xdot)
-
-    def params(self) -> dict[str, Any]:
-        return {}
-
-    def kernel_params(self) -> tuple[FloatArray | float, ...]:
-        return (self.rcond,)
-
-
-@dataclass(frozen=True)
-class DampedLeastSquares:
-    """Constant-damping least squares (Wampler 1986; Nakamura and Hanafusa 1986), paper eq. 6:
-    ``qd = J^T (J J^T + lambda^2 I)^-1 xdot = sum_i sigma_i / (sigma_i^2 + lambda^2) v_i u_i^T xdot``
-    (eq. 10). ``lam`` in the units of the singular values."""
-
-    name: ClassVar[str] = "dls"
-    method_id: ClassVar[int] = inverse_kernels.DLS
-    lam: FloatArray | float = 0.05
-
-    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
-        return solve(self, J, xdot)
-
-    def params(self) -> dict[str, Any]:
-        return {"lambda": self.lam}
-
-    def kernel_params(self) -> tuple[FloatArray | float, ...]:
-        return (self.lam,)
-
-
-@dataclass(frozen=True)
-class AdaptiveDamping:
-    """The paper's adaptive damping (eq. 16), a separate damping per singular value:
-    ``lambda_i = lambda_max (1 + cos(pi sigma_i / epsilon)) / 2`` if ``sigma_i < epsilon``,
-    else 0; then ``qd = sum_i sigma_i / (sigma_i^2 + lambda_i^2) v_i u_i^T xdot``.
-    Continuous at ``sigma_i = epsilon``; equal to the plain inverse when all
-    ``sigma_i >= epsilon``."""
-
-    name: ClassVar[str] = "adaptive"
-    method_id: ClassVar[int] = inverse_kernels.ADAPTIVE
-    lam_max: FloatArray | float = 0.0571
-    epsilon: FloatArray | float = 0.0677
-
-    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
-        return solve(self, J, xdot)
-
-    def params(self) -> dict[str, Any]:
-        return {"lambda_max": self.lam_max, "epsilon": self.epsilon}
-
-    def kernel_params(self) -> tuple[FloatArray | float, ...]:
-        return (self.lam_max, self.epsilon)
-
-
-@dataclass(frozen=True)
-class WeightedDLS:
-    """Variable damping driven by the smallest singular value, applied to all directions
-    (Maciejewski and Klein 1988; Chiaverini, Siciliano and Egeland 1994; as in Orocos KDL's
-    ``ChainIkSolverVel_wdls``): ``lambda = lambda_max sqrt(1 - (sigma_min / epsilon)^2)`` if
-    ``sigma_min < epsilon``, else 0."""
-
-    name: ClassVar[str] = "wdls"
-    method_id: ClassVar[int] = inverse_kernels.WDLS
-    lam_max: FloatArray | float = 0.05
-    epsilon: FloatArray | float = 0.1
-
-    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
-        return solve(self, J, xdot)
-
-    def params(self) -> dict[str, Any]:
-        return {"lambda_max": self.lam_max, "epsilon": self.epsilon}
-
-    def kernel_params(self) -> tuple[FloatArray | float, ...]:
-        return (self.lam_max, self.epsilon)
-
-
-@dataclass(frozen=True)
-class SelectivelyDampedLS:
-    """Selectively damped least squares (Buss and Kim 2005, J. Graphics Tools 10(3)), at the
-    velocity level. The twist is split into its linear and angular 3-blocks (the "end
-    effectors" of the original). Per singular direction i:
-    ``N_i = sum_l ||u_{l,i}||``, ``M_i = sigma_i^-1 sum_j |v_{j,i}| sum_l ||J_{l,j}||``,
-    ``gamma_i = min(1, N_i / M_i) gamma_max``,
-    ``phi_i = ClampMaxAbs(sigma_i^-1 (u_i^T xdot) v_i, gamma_i)``; finally
-    ``qd = ClampMaxAbs(sum_i phi_i, gamma_max)``. ``gamma_max`` in rad/s bounds every joint
-    rate."""
-
-    name: ClassVar[str] = "sdls"
-    method_id: ClassVar[int] = inverse_kernels.SDLS
-    gamma_max: FloatArray | float = 1.0
-
-    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
-        return solve(self, J, xdot)
-
-    def params(self) -> dict[str, Any]:
-        return {"gamma_max": self.gamma_max}
-
-    def kernel_params(self) -> tuple[FloatArray | float, ...]:
-        return (self.gamma_max,)
-
-
-@dataclass(frozen=True)
-class SingularValueFiltering:
-    """Singular value filtering (Colome and Torras 2015, IEEE/ASME Trans. Mechatronics
-    20(2)): each singular value is replaced by
-    ``sigma_hat = (sigma^3 + nu sigma^2 + 2 sigma + 2 sigma_0) / (sigma^2 + nu sigma + 2)``,
-    which is >= ``sigma_0`` and tends to ``sigma`` for large ``sigma``; then
-    ``qd = sum_i sigma_hat_i^-1 v_i u_i^T xdot``."""
-
-    name: ClassVar[str] = "svf"
-    method_id: ClassVar[int] = inverse_kernels.SVF
-    sigma0: FloatArray | float = 0.01
-    nu: FloatArray | float = 10.0
-
-    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
-        return solve(self, J, xdot)
-
-    def params(self) -> dict[str, Any]:
-        return {"sigma0": self.sigma0, "nu": self.nu}
-
-    def kernel_params(self) -> tuple[FloatArray | float, ...]:
-        return (self.sigma0, self.nu)
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """A public parameter of an inverse: valid range and default GA search bounds."""
-
-    name: str  # public name (API, make_inverse keyword)
-    field: str  # dataclass field
+    name: str  # public name (API field, make_inverse keyword)
     default: float
     low: float  # valid range, low inclusive unless low_open
     high: float
-    tune_bounds: tuple[float, float]
+    tune_bounds: tuple[float, float]  # default GA search interval
+    meaning: str  # what it is, for a person
     low_open: bool = False
-    unit: str = ""
+    unit: str = SINGULAR
+
+    def check(self, value: ArrayLike, field: str | None = None) -> FloatArray:
+        """``value`` (scalar or array) as a float array within the valid range; else ParameterError."""
+        label = field or self.name
+        arr = np.asarray(value, dtype=float)
+        if not np.all(np.isfinite(arr)):
+            raise ParameterError(label, "must be finite")
+        below = arr <= self.low if self.low_open else arr < self.low
+        if np.any(below) or np.any(arr > self.high):
+            bracket = "(" if self.low_open else "["
+            raise ParameterError(label, f"must be in {bracket}{self.low}, {self.high}], got {arr.tolist()}")
+        return arr
 
 
 @dataclass(frozen=True)
-class MethodSpec:
-    cls: type
-    params: tuple[ParamSpec, ...]
-    description: str
+class Method:
+    """An inverse method as data: its kernel filter (``kernel_id``, :mod:`engine.kernels.inverse`)
+    and its parameters in the kernel's order. Calling it builds the strategy."""
+
+    name: str
+    kernel_id: int
+    params: tuple[Param, ...]
+    description: str  # one line, for lists
+    doc: str  # the formula and its source
+    threshold: str | None = None  # the parameter that bounds the singular region (figures), if any
+
+    @property
+    def tunable(self) -> bool:
+        """Whether the GA can tune it (it has parameters)."""
+        return bool(self.params)
+
+    def param(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        valid = ", ".join(p.name for p in self.params) or "none"
+        raise ParameterError(name, f"unknown parameter {name!r} for {self.name}; valid: {valid}")
+
+    def __call__(self, **values: ArrayLike) -> Inverse:
+        """The strategy with ``values`` by public name (scalars or ``(B,)`` arrays); missing ones take
+        their defaults; unknown names and values out of range raise ``ParameterError``."""
+        unknown = set(values) - {p.name for p in self.params}
+        if unknown:
+            valid = ", ".join(p.name for p in self.params) or "none"
+            raise ParameterError(
+                min(unknown), f"unknown parameter(s) {', '.join(sorted(unknown))} for {self.name}; valid: {valid}"
+            )
+        checked = []
+        for p in self.params:
+            arr = p.check(values.get(p.name, p.default))
+            checked.append(float(arr) if arr.ndim == 0 else arr)
+        return Inverse(self, tuple(checked))
+
+
+@dataclass(frozen=True)
+class Inverse:
+    """The one strategy: a :class:`Method` and its parameter values (kernel order; scalars, or
+    ``(B,)`` arrays for a batch of parameter sets evaluated at once)."""
+
+    method: Method
+    values: tuple[FloatArray | float, ...]
+
+    @property
+    def name(self) -> str:
+        return self.method.name
+
+    @property
+    def method_id(self) -> int:
+        return self.method.kernel_id
+
+    def solve(self, J: FloatArray, xdot: FloatArray) -> InverseStep:
+        """Joint rates for ``J (..., p, n)``, ``xdot (..., p)``."""
+        return solve(self, J, xdot)
+
+    def params(self) -> dict[str, FloatArray | float]:
+        """Public parameter names and values."""
+        return {p.name: v for p, v in zip(self.method.params, self.values, strict=True)}
+
+    def kernel_params(self) -> tuple[FloatArray | float, ...]:
+        return self.values
+
+    def scalar_params(self) -> dict[str, float]:
+        """The public parameters of an unbatched strategy (nan for an array)."""
+        return {k: float(v) if np.ndim(v) == 0 else math.nan for k, v in self.params().items()}
+
+
+def _lam(default: float) -> Param:
+    return Param("lambda", default, 0.0, 10.0, (1e-4, 0.2), "the constant damping lambda")
+
+
+def _lam_max(default: float) -> Param:
+    return Param("lambda_max", default, 0.0, 10.0, (1e-4, 0.2), "the largest damping lambda_max (at a zero singular value)")
+
+
+def _epsilon(default: float) -> Param:
+    return Param("epsilon", default, 0.0, 10.0, (1e-4, 1.0), "the singular value epsilon below which damping starts", True)
 
 
 # Default GA search bounds (``tune_bounds``), from the Table-1 robot on the paper's path: the
@@ -267,94 +212,101 @@ class MethodSpec:
 # about 0.25 the objective is nearly flat in epsilon (eq. 18: 0.00187 at 0.26, 0.00183 at
 # 0.75), so tuned values anywhere there are equally good; an upper bound of 0.3 used to put
 # the optimum on the bound. A tuning result warns when its optimum sits on a bound.
-METHODS: dict[str, MethodSpec] = {
-    "inverse": MethodSpec(PlainInverse, (), "plain inverse / pseudo-inverse, no damping (paper eq. 3)"),
-    "dls": MethodSpec(
-        DampedLeastSquares,
-        (ParamSpec("lambda", "lam", 0.05, 0.0, 10.0, (1e-4, 0.2)),),
+REGISTRY: tuple[Method, ...] = (
+    Method(
+        "inverse",
+        kernels.PLAIN,
+        (),
+        "plain inverse / pseudo-inverse, no damping (paper eq. 3)",
+        "Undamped inverse (paper eq. 3): ``qd = J^-1 xdot`` for a square GJM, the Moore-Penrose pseudo-inverse "
+        "otherwise, both from the SVD (singular values below 1e-12 sigma_1 dropped). Joint rates are unbounded near "
+        "singularities.",
+    ),
+    Method(
+        "dls",
+        kernels.DLS,
+        (_lam(0.05),),
         "damped least squares with constant damping (paper eq. 6)",
+        "Constant-damping least squares (Wampler 1986; Nakamura and Hanafusa 1986), paper eq. 6: "
+        "``qd = J^T (J J^T + lambda^2 I)^-1 xdot = sum_i sigma_i / (sigma_i^2 + lambda^2) v_i u_i^T xdot`` (eq. 10).",
     ),
-    "adaptive": MethodSpec(
-        AdaptiveDamping,
-        (
-            ParamSpec("lambda_max", "lam_max", 0.0571, 0.0, 10.0, (1e-4, 0.2)),
-            ParamSpec("epsilon", "epsilon", 0.0677, 0.0, 10.0, (1e-4, 1.0), low_open=True),
-        ),
+    Method(
+        "adaptive",
+        kernels.ADAPTIVE,
+        (_lam_max(0.0571), _epsilon(0.0677)),
         "per-singular-value adaptive damping (paper eq. 16)",
+        "The paper's adaptive damping (eq. 16), a separate damping per singular value: ``lambda_i = lambda_max "
+        "(1 + cos(pi sigma_i / epsilon)) / 2`` if ``sigma_i < epsilon``, else 0; then ``qd = sum_i sigma_i / "
+        "(sigma_i^2 + lambda_i^2) v_i u_i^T xdot``. Continuous at ``sigma_i = epsilon``; the plain inverse when all "
+        "``sigma_i >= epsilon``.",
+        threshold="epsilon",
     ),
-    "wdls": MethodSpec(
-        WeightedDLS,
-        (
-            ParamSpec("lambda_max", "lam_max", 0.05, 0.0, 10.0, (1e-4, 0.2)),
-            ParamSpec("epsilon", "epsilon", 0.1, 0.0, 10.0, (1e-4, 1.0), low_open=True),
-        ),
+    Method(
+        "wdls",
+        kernels.WDLS,
+        (_lam_max(0.05), _epsilon(0.1)),
         "damping from the smallest singular value, all directions (KDL wdls)",
+        "Variable damping driven by the smallest singular value, applied to all directions (Maciejewski and Klein "
+        "1988; Chiaverini, Siciliano and Egeland 1994; Orocos KDL's ``ChainIkSolverVel_wdls``): ``lambda = "
+        "lambda_max sqrt(1 - (sigma_min / epsilon)^2)`` if ``sigma_min < epsilon``, else 0.",
+        threshold="epsilon",
     ),
-    "sdls": MethodSpec(
-        SelectivelyDampedLS,
-        (ParamSpec("gamma_max", "gamma_max", 1.0, 0.0, 100.0, (1e-3, 2.0), low_open=True, unit="rad/s"),),
+    Method(
+        "sdls",
+        kernels.SDLS,
+        (Param("gamma_max", 1.0, 0.0, 100.0, (1e-3, 2.0), "the largest joint rate gamma_max", True, "rad/s"),),
         "selectively damped least squares (Buss and Kim 2005)",
+        "Selectively damped least squares (Buss and Kim 2005, J. Graphics Tools 10(3)), at the velocity level, the "
+        "twist split into its linear and angular 3-blocks: per singular direction ``gamma_i = min(1, N_i / M_i) "
+        "gamma_max`` clamps that direction's joint motion, and ``gamma_max`` (rad/s) bounds every joint rate.",
     ),
-    "svf": MethodSpec(
-        SingularValueFiltering,
+    Method(
+        "svf",
+        kernels.SVF,
         (
-            ParamSpec("sigma0", "sigma0", 0.01, 0.0, 10.0, (1e-4, 0.2), low_open=True),
-            ParamSpec("nu", "nu", 10.0, 0.0, 1000.0, (0.1, 100.0)),
+            Param("sigma0", 0.01, 0.0, 10.0, (1e-4, 0.2), "the smallest filtered singular value sigma_0", True),
+            Param("nu", 10.0, 0.0, 1000.0, (0.1, 100.0), "the shape factor nu of the filter", unit=""),
         ),
         "singular value filtering (Colome and Torras 2015)",
+        "Singular value filtering (Colome and Torras 2015, IEEE/ASME Trans. Mechatronics 20(2)): each singular value "
+        "is replaced by ``sigma_hat = (sigma^3 + nu sigma^2 + 2 sigma + 2 sigma_0) / (sigma^2 + nu sigma + 2)`` "
+        "(>= sigma_0, tending to sigma for large sigma); then ``qd = sum_i sigma_hat_i^-1 v_i u_i^T xdot``.",
+        threshold="sigma0",
     ),
-}
+)
+METHODS: dict[str, Method] = {m.name: m for m in REGISTRY}
 
 
 def method_names() -> list[str]:
     return list(METHODS)
 
 
-def method_spec(name: str) -> MethodSpec:
+def method_spec(name: str) -> Method:
+    """The registered method ``name``; an unknown name raises ``ParameterError`` naming ``method``."""
     try:
         return METHODS[name]
     except KeyError:
         raise ParameterError("method", f"unknown inverse method {name!r}; valid methods: {', '.join(METHODS)}") from None
 
 
-def check_param(spec: ParamSpec, value: ArrayLike, field: str | None = None) -> FloatArray:
-    """Validate a parameter value (scalar or array) against its range; returns it as float array."""
-    label = field or spec.name
-    arr = np.asarray(value, dtype=float)
-    if not np.all(np.isfinite(arr)):
-        raise ParameterError(label, "must be finite")
-    below = arr <= spec.low if spec.low_open else arr < spec.low
-    if np.any(below) or np.any(arr > spec.high):
-        bracket = "(" if spec.low_open else "["
-        raise ParameterError(label, f"must be in {bracket}{spec.low}, {spec.high}], got {arr.tolist()}")
-    return arr
-
-
-def make_inverse(name: str, **params: Any) -> RobustInverse:
+def make_inverse(name: str, **params: Any) -> Inverse:
     """Build the strategy ``name`` (one of :data:`METHODS`) from public parameter names.
 
     Missing parameters take their defaults; unknown names and out-of-range values raise
-    ``ValueError``. Values may be scalars or ``(B,)`` arrays for batched evaluation.
+    ``ParameterError`` (a ``ValueError``). Values may be scalars or ``(B,)`` arrays for batched
+    evaluation.
     """
-    spec = method_spec(name)
-    known = {p.name: p for p in spec.params}
-    unknown = set(params) - set(known)
-    if unknown:
-        valid = ", ".join(known) or "none"
-        raise ParameterError(min(unknown), f"unknown parameter(s) {', '.join(sorted(unknown))} for {name}; valid: {valid}")
-    kwargs: dict[str, Any] = {}
-    for pname, p in known.items():
-        value = params.get(pname, p.default)
-        arr = check_param(p, value, pname)
-        kwargs[p.field] = float(arr) if arr.ndim == 0 else arr
-    inverse: RobustInverse = spec.cls(**kwargs)
-    return inverse
+    return method_spec(name)(**params)
 
 
-def inverse_params(inverse: RobustInverse) -> dict[str, float]:
-    """Scalar public parameters of an unbatched strategy (for reports)."""
-    out: dict[str, float] = {}
-    for key, value in inverse.params().items():
-        arr = np.asarray(value, dtype=float)
-        out[key] = float(arr) if arr.ndim == 0 else math.nan
-    return out
+def method_table() -> str:
+    """The README's table of the methods (markdown), from the registry."""
+    rows = ["| method | parameters (default; GA search bounds) | what it is |", "|---|---|---|"]
+    for m in REGISTRY:
+        params = "; ".join(
+            f"`{p.name}` {p.default:g}{' ' + p.unit if p.unit and p.unit != SINGULAR else ''} "
+            f"([{p.tune_bounds[0]:g}, {p.tune_bounds[1]:g}])"
+            for p in m.params
+        )
+        rows.append(f"| `{m.name}` | {params or 'none'} | {m.description} |")
+    return "\n".join(rows)

@@ -9,18 +9,17 @@ limit, the plan finite), how flat ``B`` is, and where its minimum lies.
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from engine.errors import ParameterError
-from engine.inverses import check_param, make_inverse, method_spec
-from engine.metrics import Objective
+from engine.inverses import method_spec
 from engine.model import RobotModel
-from engine.planner import evaluate, task_metrics
+from engine.planner import PlanOptions, PlanSetup, Stop, evaluate
 from engine.spatial import FloatArray
 from engine.trajectory import CartesianTask
 from engine.tuning import TASK_AGGREGATIONS
@@ -71,18 +70,17 @@ def landscape(
     y: tuple[str, Sequence[float] | FloatArray],
     *,
     fixed: Mapping[str, float] | None = None,
-    weights: tuple[float, float] = (0.5, 0.5),
-    aggregation: str = "max",
-    attitude_term: str = "eq18",
+    options: PlanOptions | None = None,
     task_aggregation: str = "mean",
-    feedback_gain: float = 0.0,
     threads: int | None = None,
-    stop: threading.Event | None = None,
+    stop: Stop | None = None,
+    **option_fields: Any,
 ) -> Landscape:
     """Plan every ``(x, y)`` cell of ``method``'s parameters ``x = (name, values)`` and
     ``y = (name, values)`` (``fixed`` gives the method's other parameters, default: their
-    defaults) on each task; ``B`` is formed as in :func:`engine.tuning.tune` (the tasks' mean or
-    max, ``task_aggregation``). Raises :class:`ParameterError` naming the bad argument."""
+    defaults) on each task, with ``options`` (or their keywords, see :meth:`PlanOptions.of`);
+    ``B`` is formed as in :func:`engine.tuning.tune` (the tasks' mean or max,
+    ``task_aggregation``). Raises :class:`ParameterError` naming the bad argument."""
     task_list = (tasks,) if isinstance(tasks, CartesianTask) else tuple(tasks)
     if not task_list:
         raise ParameterError("tasks", "at least one task is needed")
@@ -96,33 +94,37 @@ def landscape(
             raise ParameterError(field, f"unknown parameter {name!r} of {method}; valid: {', '.join(known)}")
     if x_name == y_name:
         raise ParameterError("y.name", "must differ from x.name")
-    x_values = check_param(known[x_name], np.asarray(x_raw, dtype=float), "x")
-    y_values = check_param(known[y_name], np.asarray(y_raw, dtype=float), "y")
+    x_values = known[x_name].check(np.asarray(x_raw, dtype=float), "x")
+    y_values = known[y_name].check(np.asarray(y_raw, dtype=float), "y")
     others = {name: p for name, p in known.items() if name not in (x_name, y_name)}
     unknown = set(fixed or {}) - set(others)
     if unknown:
         raise ParameterError(f"fixed.{min(unknown)}", f"not a further parameter of {method}; these are: {', '.join(others)}")
     fixed_values = {name: float((fixed or {}).get(name, p.default)) for name, p in others.items()}
     for name, value in fixed_values.items():
-        check_param(others[name], np.array([value]), f"fixed.{name}")
+        others[name].check(np.array([value]), f"fixed.{name}")
     if task_aggregation not in TASK_AGGREGATIONS:
         raise ParameterError("task_aggregation", f"must be one of {', '.join(TASK_AGGREGATIONS)}")
+    settings = options or PlanOptions.of(**option_fields)
+    setups = []
     for i, task in enumerate(task_list):
-        if task.q0.shape != (model.n_joints,):
-            raise ParameterError(f"tasks[{i}].q0", f"expected {model.n_joints} joint angles, got {task.q0.shape[0]}")
-    objective = Objective(weights, aggregation, attitude_term)
+        try:
+            setups.append(PlanSetup(model, task, settings))
+        except ParameterError as exc:
+            if exc.field.startswith("task."):  # this task's error: named by its index
+                raise ParameterError(f"tasks[{i}]{exc.field[4:]}", exc.reason) from None
+            raise
 
     start = time.perf_counter()
     grid_x, grid_y = np.meshgrid(x_values, y_values, indexing="ij")
     cells = grid_x.size
     columns = {x_name: grid_x.ravel(), y_name: grid_y.ravel(), **{n: np.full(cells, v) for n, v in fixed_values.items()}}
-    inverse = make_inverse(method, **columns)
+    inverse = spec(**columns)
     per_task_b = np.empty((len(task_list), cells))
     speed = np.full(cells, -np.inf)
     feasible = np.ones(cells, dtype=bool)
-    for k, task in enumerate(task_list):
-        raw = evaluate(model, task, inverse, cells, feedback_gain=feedback_gain, threads=threads, stop=stop)
-        metrics = task_metrics(raw, task, objective)
+    for k, setup in enumerate(setups):
+        metrics = setup.metrics(evaluate(setup, inverse, cells, threads=threads, stop=stop))
         per_task_b[k] = metrics.objective_b
         feasible &= np.isfinite(metrics.objective_b)
         speed = np.fmax(speed, np.where(metrics.finite, metrics.max_joint_speed, np.nan))

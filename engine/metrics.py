@@ -16,14 +16,20 @@ two readings (``attitude_term``):
 - ``"angle"``: the attitude error as a rotation angle (rad), frame independent. Dimensionally
   cleaner (m + rad), but the attitude term then dominates ``B`` and the margin of the adaptive
   damping over DLS shrinks to a few per cent on the paper's task.
+
+The metrics layout is declared once, here: each field of :class:`Metrics` carries its SI unit,
+its slot in the planner kernel's metrics vector (:mod:`engine.kernels.plan`) if the kernel
+accumulates it, and its API name, conversion, type and description (:func:`metric`). The service's
+response model, its conversion and the web page's rows are derived from :data:`LAYOUT`, so a new
+metric is its kernel slot and its field here.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
-from typing import Literal
+from dataclasses import dataclass, field, fields
+from typing import Any, Generic, Literal, NamedTuple, TypeAlias, TypeVar
 
 import numpy as np
 
@@ -35,100 +41,301 @@ Aggregation = Literal["max", "rms", "final"]
 AGGREGATIONS: tuple[str, ...] = ("max", "rms", "final")
 ATTITUDE_TERMS: tuple[str, ...] = ("eq18", "angle")
 
+#: The units of the GJM's singular values (it maps joint rates, rad/s, to [v (m/s); w (rad/s)]:
+#: m/rad on the linear rows, 1 on the angular rows).
+SINGULAR_VALUE_UNITS = "in the units of the GJM's singular values"
+#: The unit of the GJM's determinant (and of the product of its singular values): three linear
+#: rows in m (m/s per rad/s) and three angular rows without unit.
+DET_UNITS = "m^3 (three rows in m per rad, three without unit)"
+NULL_NOT_FINITE = "null if not finite"
+
+#: How a value is shown by the API: as it is (SI), in degrees, or as a 1-based joint number.
+ApiConversion = Literal["", "deg", "joint"]
+#: The API's type of a value: a number, a flag, a joint number or one of the engine's vocabularies.
+ApiType = Literal["number", "bool", "joint", "attitude_term", "tracks"]
+REQUIRED: Any = ...  # an API field every stored plan has
+
+
+class WebRow(NamedTuple):
+    """A row of the plan page's metrics card: label, unit shown, scale from the API's value
+    (``None``: a yes/no flag)."""
+
+    label: str
+    unit: str
+    scale: float | None
+
+
+class MetricSpec(NamedTuple):
+    """One entry of the metrics layout (see the module docstring)."""
+
+    name: str  # the field of Metrics
+    unit: str  # SI unit inside the engine ("" without unit)
+    slot: int | None  # index in the kernel's metrics vector; None if derived after the kernel
+    api: str | None  # the API's name; None if not in the API
+    conversion: ApiConversion
+    api_type: ApiType
+    api_default: Any  # REQUIRED, or the value a plan stored before the field existed reads as
+    description: str  # the API's description
+    web: WebRow | None
+
+
+def metric(
+    unit: str,
+    description: str = "",
+    *,
+    slot: int | None = None,
+    api: str | None = None,
+    conversion: ApiConversion = "",
+    api_type: ApiType = "number",
+    api_default: Any = REQUIRED,
+    web: WebRow | None = None,
+) -> Any:
+    """A :class:`Metrics` field with its layout entry as metadata."""
+    return field(
+        metadata={
+            "spec": dict(
+                unit=unit,
+                slot=slot,
+                api=api,
+                conversion=conversion,
+                api_type=api_type,
+                api_default=api_default,
+                description=description,
+                web=web,
+            )
+        }
+    )
+
+
+#: A batch of values, one per plan.
+Column: TypeAlias = "np.ndarray[Any, Any]"
+V = TypeVar("V", float, Column)
+DEG = 180.0 / math.pi
+
 
 @dataclass(frozen=True)
-class Metrics:
-    """Metrics of one plan. Errors in m and rad, speeds in rad/s, times in s."""
+class Metrics(Generic[V]):
+    """Metrics of plans: ``Metrics[float]`` for one plan, ``Metrics[Column]`` for a batch
+    (every per-plan field a ``(B,)`` array; the settings shared). Errors in m and rad, speeds in
+    rad/s (m/s for prismatic joints), times in s; joint indices 0-based (-1: none)."""
 
-    position_error_max: float
-    position_error_rms: float
-    position_error_final: float
-    attitude_error_max: float
-    attitude_error_rms: float
-    attitude_error_final: float
-    coupled_error_max: float  # eq. 18 as printed, m rad
-    coupled_error_rms: float
-    coupled_error_final: float
-    max_joint_speed: float
-    max_joint_speed_joint: int  # 0-based joint index
-    joint_speed_limit: float
-    joint_speed_limit_respected: bool
-    min_singular_value: float
-    time_of_min_singular_value: float
-    min_abs_det_J_g: float  # nan when the GJM is not square
-    time_of_min_abs_det_J_g: float
-    objective_b: float  # inf when the speed limit is broken or the plan diverged
-    weights: tuple[float, float]
-    aggregation: str
-    attitude_term: str
-    finite: bool  # every sample finite (the plan did not diverge)
-    time_diverged: float = math.nan  # s, the sample where a diverged plan stopped
-    max_linear_joint_speed: float = 0.0  # m/s, prismatic joints (0 without any)
-    max_linear_joint_speed_joint: int = -1  # 0-based joint index, -1 without prismatic joints
-    linear_joint_speed_limit: float = math.inf  # m/s
-    position_limits_respected: bool = True
-    position_limit_joint: int = -1  # 0-based, the first joint found outside its limits
-    time_position_limit_left: float = math.nan  # s
-    position_limit_excess: float = math.nan  # rad or m, that joint's largest excess
-    base_rotation_max: float = math.nan  # rad, the carrier's attitude change from its start
-    base_rotation_final: float = math.nan  # rad
-    tracks: str = "pose"
+    objective_b: V = metric(
+        "",
+        "objective B = w1 * position term (m) + w2 * attitude term (rad, or m rad with `eq18`), with the plan's "
+        "aggregation; null when the joint speed limit is broken",
+        api="objective_b",
+        web=WebRow("objective B", "", 1.0),
+    )
+    position_error_max: V = metric(
+        "m",
+        f"largest end-effector position error, m; {NULL_NOT_FINITE}",
+        slot=kp.POS_MAX,
+        api="position_error_max_m",
+        web=WebRow("max position error", "mm", 1e3),
+    )
+    position_error_rms: V = metric(
+        "m",
+        f"root mean square position error, m; {NULL_NOT_FINITE}",
+        slot=kp.POS_RMS,
+        api="position_error_rms_m",
+        web=WebRow("RMS position error", "mm", 1e3),
+    )
+    position_error_final: V = metric(
+        "m",
+        f"position error at the end, m; {NULL_NOT_FINITE}",
+        slot=kp.POS_FINAL,
+        api="position_error_final_m",
+        web=WebRow("final position error", "mm", 1e3),
+    )
+    attitude_error_max: V = metric(
+        "rad",
+        f"largest attitude error (rotation angle), rad; {NULL_NOT_FINITE}",
+        slot=kp.ATT_MAX,
+        api="attitude_error_max_rad",
+        web=WebRow("max attitude error", "deg", DEG),
+    )
+    attitude_error_rms: V = metric(
+        "rad",
+        f"root mean square attitude error, rad; {NULL_NOT_FINITE}",
+        slot=kp.ATT_RMS,
+        api="attitude_error_rms_rad",
+        web=WebRow("RMS attitude error", "deg", DEG),
+    )
+    attitude_error_final: V = metric(
+        "rad",
+        f"attitude error at the end, rad; {NULL_NOT_FINITE}",
+        slot=kp.ATT_FINAL,
+        api="attitude_error_final_rad",
+        web=WebRow("final attitude error", "deg", DEG),
+    )
+    coupled_error_max: V = metric(
+        "m rad",
+        "eq. 18 as printed, sqrt(sum (dp_i dphi_i)^2), largest, m rad; null if not finite",
+        slot=kp.CPL_MAX,
+        api="coupled_error_max_m_rad",
+        api_default=None,
+    )
+    coupled_error_rms: V = metric(
+        "m rad",
+        "eq. 18 as printed, root mean square, m rad",
+        slot=kp.CPL_RMS,
+        api="coupled_error_rms_m_rad",
+        api_default=None,
+    )
+    coupled_error_final: V = metric(
+        "m rad",
+        "eq. 18 as printed, at the end, m rad",
+        slot=kp.CPL_FINAL,
+        api="coupled_error_final_m_rad",
+        api_default=None,
+    )
+    attitude_term: str = metric(
+        "",
+        "the attitude term B was formed with (plans stored before it was recorded: `angle`)",
+        api="attitude_term",
+        api_type="attitude_term",
+        api_default="angle",
+    )
+    max_joint_speed: V = metric(
+        "rad/s",
+        f"largest speed of any revolute joint, deg/s; {NULL_NOT_FINITE}",
+        slot=kp.MAX_SPEED,
+        api="max_joint_speed_deg_s",
+        conversion="deg",
+        web=WebRow("max joint speed", "deg/s", 1.0),
+    )
+    joint_speed_limit: float = metric(
+        "rad/s",
+        "the task's revolute joint speed limit, deg/s",
+        api="joint_speed_limit_deg_s",
+        conversion="deg",
+        api_default=None,
+        web=WebRow("joint speed limit", "deg/s", 1.0),
+    )
+    joint_speed_limit_respected: V = metric(
+        "",
+        "every joint within its speed limit at every sample",
+        api="joint_speed_limit_respected",
+        api_type="bool",
+        web=WebRow("speed limit respected", "", None),
+    )
+    min_singular_value: V = metric(
+        "",
+        f"smallest singular value of the GJM along the plan, {SINGULAR_VALUE_UNITS}; {NULL_NOT_FINITE}",
+        slot=kp.MIN_SIGMA,
+        api="min_singular_value",
+        web=WebRow("min singular value σ_min", "", 1.0),
+    )
+    time_of_min_singular_value: V = metric(
+        "s",
+        "when the smallest singular value occurred, s",
+        slot=kp.T_MIN_SIGMA,
+        api="time_of_min_singular_value_s",
+        web=WebRow("time of min σ_min", "s", 1.0),
+    )
+    min_abs_det_J_g: V = metric(
+        "",
+        f"smallest |det| of the tracked rows of the GJM along the plan, {DET_UNITS} for a pose task; null unless "
+        "they are square, or if not finite",
+        slot=kp.MIN_DET,
+        api="min_abs_det_gjm",
+        web=WebRow("min |det J_g|", "", 1.0),
+    )
+    time_of_min_abs_det_J_g: V = metric(
+        "s",
+        "when the smallest |det| occurred, s",
+        slot=kp.T_MIN_DET,
+        api="time_of_min_abs_det_gjm_s",
+        web=WebRow("time of min |det J_g|", "s", 1.0),
+    )
+    tracks: str = metric(
+        "",
+        "what the plan followed: the whole `pose` or the `position`",
+        api="tracks",
+        api_type="tracks",
+        api_default="pose",
+    )
+    max_linear_joint_speed: V = metric(
+        "m/s",
+        f"largest speed of any prismatic joint, m/s (0 without any); {NULL_NOT_FINITE}",
+        slot=kp.MAX_LIN_SPEED,
+        api="max_linear_joint_speed_m_s",
+        api_default=None,
+    )
+    linear_joint_speed_limit: float = metric(
+        "m/s", "the task's prismatic joint speed limit, m/s; null: none", api="joint_speed_limit_m_s", api_default=None
+    )
+    position_limits_respected: V = metric(
+        "",
+        "every joint within its position limits at every sample (null: a plan stored before limits were checked)",
+        api="position_limits_respected",
+        api_type="bool",
+        api_default=None,
+    )
+    position_limit_joint: V = metric(
+        "",
+        "the first joint (1-based index) found outside its limits; null if none",
+        slot=kp.LIMIT_JOINT,
+        api="position_limit_joint",
+        conversion="joint",
+        api_type="joint",
+        api_default=None,
+    )
+    time_position_limit_left: V = metric(
+        "s",
+        "when that joint left its limits, s; null if none",
+        slot=kp.T_LIMIT,
+        api="time_position_limit_left_s",
+        api_default=None,
+    )
+    base_rotation_max: V = metric(
+        "rad",
+        f"the carrier's largest rotation from its start, rad; {NULL_NOT_FINITE}",
+        slot=kp.BASE_ROT_MAX,
+        api="base_attitude_change_max_rad",
+        api_default=None,
+    )
+    base_rotation_final: V = metric(
+        "rad",
+        f"the carrier's rotation from its start at the end, rad; {NULL_NOT_FINITE}",
+        slot=kp.BASE_ROT_FINAL,
+        api="base_attitude_change_final_rad",
+        api_default=None,
+    )
+    # Not in the API: the objective's settings, joint indices, divergence.
+    weights: tuple[float, float] = metric("")
+    aggregation: str = metric("")
+    finite: V = metric("", slot=kp.FINITE)  # every sample finite (the plan did not diverge)
+    time_diverged: V = metric("s", slot=kp.T_DIVERGED)  # the sample where a diverged plan stopped
+    max_joint_speed_joint: V = metric("", slot=kp.MAX_SPEED_JOINT)  # 0-based
+    max_linear_joint_speed_joint: V = metric("", slot=kp.MAX_LIN_SPEED_JOINT)  # 0-based, -1 without prismatic joints
+    position_limit_excess: V = metric("rad or m", slot=kp.LIMIT_EXCESS)  # that joint's largest excess
 
     @property
-    def max_joint_speed_deg_s(self) -> float:
-        return math.degrees(self.max_joint_speed)
-
-    def as_dict(self) -> dict[str, float | int | bool | str | tuple[float, float]]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
-@dataclass(frozen=True)
-class BatchMetrics:
-    """The fields of :class:`Metrics` as ``(B,)`` arrays (weights and aggregation shared)."""
-
-    position_error_max: FloatArray
-    position_error_rms: FloatArray
-    position_error_final: FloatArray
-    attitude_error_max: FloatArray
-    attitude_error_rms: FloatArray
-    attitude_error_final: FloatArray
-    coupled_error_max: FloatArray
-    coupled_error_rms: FloatArray
-    coupled_error_final: FloatArray
-    max_joint_speed: FloatArray
-    max_joint_speed_joint: np.ndarray
-    joint_speed_limit: float
-    joint_speed_limit_respected: np.ndarray
-    min_singular_value: FloatArray
-    time_of_min_singular_value: FloatArray
-    min_abs_det_J_g: FloatArray
-    time_of_min_abs_det_J_g: FloatArray
-    objective_b: FloatArray
-    weights: tuple[float, float]
-    aggregation: str
-    attitude_term: str
-    finite: np.ndarray
-    time_diverged: FloatArray
-    max_linear_joint_speed: FloatArray | float = 0.0
-    max_linear_joint_speed_joint: np.ndarray | int = -1
-    linear_joint_speed_limit: float = math.inf
-    position_limits_respected: np.ndarray | bool = True
-    position_limit_joint: np.ndarray | int = -1
-    time_position_limit_left: FloatArray | float = math.nan
-    position_limit_excess: FloatArray | float = math.nan
-    base_rotation_max: FloatArray | float = math.nan
-    base_rotation_final: FloatArray | float = math.nan
-    tracks: str = "pose"
+    def max_joint_speed_deg_s(self) -> V:
+        return self.max_joint_speed * DEG
 
     def __len__(self) -> int:
-        return int(self.objective_b.shape[0])
+        return int(np.size(self.objective_b))
 
-    def item(self, i: int) -> Metrics:
+    def item(self, i: int) -> Metrics[float]:
+        """Plan ``i`` of a batch."""
         values = {}
-        for name in _METRIC_FIELDS:
+        for name in _NAMES:
             v = getattr(self, name)
             values[name] = v.item(i) if isinstance(v, np.ndarray) else v
-        return Metrics(**values)
+        return Metrics[float](**values)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {name: getattr(self, name) for name in _NAMES}
+
+
+_NAMES = tuple(f.name for f in fields(Metrics))
+#: The metrics layout, in the API's order (see :class:`MetricSpec`).
+LAYOUT: tuple[MetricSpec, ...] = tuple(MetricSpec(f.name, **f.metadata["spec"]) for f in fields(Metrics))
+_SLOTS = tuple(s for s in LAYOUT if s.slot is not None)
+assert sorted(s.slot or 0 for s in _SLOTS) == list(range(kp.N_METRICS)), "every kernel slot is one field"
+_INDICES = frozenset({"max_joint_speed_joint", "max_linear_joint_speed_joint", "position_limit_joint"})
 
 
 def check_weights(weights: Sequence[float]) -> tuple[float, float]:
@@ -159,10 +366,7 @@ class Objective:
         check_attitude_term(self.attitude_term)
 
 
-_METRIC_FIELDS = tuple(f.name for f in fields(Metrics))
-
-
-def objective(metrics: BatchMetrics | Metrics, settings: Objective) -> FloatArray:
+def objective(metrics: Metrics[Any], settings: Objective) -> FloatArray:
     """The paper's ``B`` per plan from aggregated errors: ``w1 dp + w2 dp_phi`` with the
     aggregation and attitude term of ``settings`` (``w1 dp`` alone for a position task); +inf
     where a speed or position limit is broken or the plan is not finite."""
@@ -188,50 +392,29 @@ def batch_metrics(
     *,
     linear_joint_speed_limit: float = math.inf,
     tracks: str = "pose",
-) -> BatchMetrics:
+) -> Metrics[Column]:
     """Metrics of ``B`` plans from the planner kernel's metrics rows ``raw (B, N_METRICS)``
     (:mod:`engine.kernels.plan`); ``settings`` say how ``B`` is formed, ``tracks`` what the
     plans followed."""
     cols = raw.T.copy()  # one copy: each metric's column a contiguous row of its own
+    values: dict[str, Any] = {
+        s.name: cols[s.slot].astype(int) if s.name in _INDICES else cols[s.slot] for s in _SLOTS if s.slot is not None
+    }
     finite = cols[kp.FINITE] > 0.5
-    max_speed = cols[kp.MAX_SPEED]
-    max_linear = cols[kp.MAX_LIN_SPEED]
-    speed_ok = finite & (max_speed <= joint_speed_limit) & (max_linear <= linear_joint_speed_limit)
-    limit_joint = cols[kp.LIMIT_JOINT].astype(int)
-    values = BatchMetrics(
-        position_error_max=cols[kp.POS_MAX],
-        position_error_rms=cols[kp.POS_RMS],
-        position_error_final=cols[kp.POS_FINAL],
-        attitude_error_max=cols[kp.ATT_MAX],
-        attitude_error_rms=cols[kp.ATT_RMS],
-        attitude_error_final=cols[kp.ATT_FINAL],
-        coupled_error_max=cols[kp.CPL_MAX],
-        coupled_error_rms=cols[kp.CPL_RMS],
-        coupled_error_final=cols[kp.CPL_FINAL],
-        max_joint_speed=max_speed,
-        max_joint_speed_joint=cols[kp.MAX_SPEED_JOINT].astype(int),
-        joint_speed_limit=float(joint_speed_limit),
-        joint_speed_limit_respected=speed_ok,
-        min_singular_value=cols[kp.MIN_SIGMA],
-        time_of_min_singular_value=cols[kp.T_MIN_SIGMA],
-        min_abs_det_J_g=cols[kp.MIN_DET],
-        time_of_min_abs_det_J_g=cols[kp.T_MIN_DET],
+    values["finite"] = finite
+    values["joint_speed_limit_respected"] = (
+        finite & (cols[kp.MAX_SPEED] <= joint_speed_limit) & (cols[kp.MAX_LIN_SPEED] <= linear_joint_speed_limit)
+    )
+    values["position_limits_respected"] = values["position_limit_joint"] < 0
+    values.update(
         objective_b=np.empty(raw.shape[0]),
+        joint_speed_limit=float(joint_speed_limit),
+        linear_joint_speed_limit=float(linear_joint_speed_limit),
         weights=settings.weights,
         aggregation=settings.aggregation,
         attitude_term=settings.attitude_term,
-        finite=finite,
-        time_diverged=cols[kp.T_DIVERGED],
-        max_linear_joint_speed=max_linear,
-        max_linear_joint_speed_joint=cols[kp.MAX_LIN_SPEED_JOINT].astype(int),
-        linear_joint_speed_limit=float(linear_joint_speed_limit),
-        position_limits_respected=limit_joint < 0,
-        position_limit_joint=limit_joint,
-        time_position_limit_left=cols[kp.T_LIMIT],
-        position_limit_excess=cols[kp.LIMIT_EXCESS],
-        base_rotation_max=cols[kp.BASE_ROT_MAX],
-        base_rotation_final=cols[kp.BASE_ROT_FINAL],
         tracks=tracks,
     )
-    values.objective_b[:] = objective(values, settings)
-    return values
+    result = Metrics[Column](**values)
+    result.objective_b[:] = objective(result, settings)
+    return result

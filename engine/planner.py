@@ -24,14 +24,16 @@ import threading
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, Protocol
 
 import numpy as np
 
 from engine.errors import ParameterError
-from engine.inverses import RobustInverse, inverse_params, kernel_param_rows, make_inverse, method_spec
+from engine.inverses import Inverse, kernel_param_rows, make_inverse, method_spec
 from engine.kernels import plan as plan_kernels
 from engine.kernels import redundancy as redundancy_kernels
-from engine.metrics import BatchMetrics, Metrics, Objective, batch_metrics
+from engine.metrics import Column, Metrics, Objective, batch_metrics
 from engine.model import RobotModel
 from engine.redundancy import SecondaryObjective, joint_centres
 from engine.spatial import FloatArray, matrix_to_quaternion
@@ -97,47 +99,119 @@ def check_task(model: RobotModel, task: CartesianTask) -> None:
         )
 
 
-def _check(model: RobotModel, task: CartesianTask, feedback_gain: float, secondary: SecondaryObjective | None) -> None:
-    check_task(model, task)
-    if not math.isfinite(feedback_gain) or feedback_gain < 0.0:
-        raise ParameterError("feedback_gain", "must be finite and >= 0")
-    rows = TRACKS[task.tracks]
-    if secondary is not None and model.n_joints <= rows:
-        raise ParameterError(
-            "secondary",
-            f"a secondary objective needs a redundant arm: more joints than the {rows} the {task.tracks} task tracks "
-            f"(this robot has {model.n_joints})",
+@dataclass(frozen=True)
+class PlanOptions:
+    """How plans are run and judged, built once at the boundary and passed down: the pose
+    feedback gain (1/s), how ``B`` is formed, the null-space objective of a redundant arm and the
+    tolerances of the verdict (m, rad)."""
+
+    feedback_gain: float = 0.0
+    objective: Objective = field(default_factory=Objective)
+    secondary: SecondaryObjective | None = None
+    position_tolerance: float = POSITION_TOLERANCE_M
+    attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD
+
+    def __post_init__(self) -> None:
+        if not math.isfinite(self.feedback_gain) or self.feedback_gain < 0.0:
+            raise ParameterError("feedback_gain", "must be finite and >= 0")
+        for name in ("position_tolerance", "attitude_tolerance"):
+            if not getattr(self, name) > 0.0:
+                raise ParameterError(name, "must be > 0")
+
+    @classmethod
+    def of(
+        cls,
+        *,
+        weights: tuple[float, float] | None = None,
+        aggregation: str | None = None,
+        attitude_term: str | None = None,
+        **fields: Any,
+    ) -> PlanOptions:
+        """Options from keywords: the objective's (``weights``, ``aggregation``,
+        ``attitude_term``) and this class's own; what is not given keeps its default."""
+        if weights is not None or aggregation is not None or attitude_term is not None:
+            default = Objective()
+            fields["objective"] = Objective(
+                weights if weights is not None else default.weights,
+                aggregation if aggregation is not None else default.aggregation,
+                attitude_term if attitude_term is not None else default.attitude_term,
+            )
+        return cls(**fields)
+
+
+class Stop(Protocol):
+    """Anything that says whether to stop (a ``threading.Event``, a tuning termination)."""
+
+    def is_set(self) -> bool: ...
+
+
+@dataclass(frozen=True)
+class PlanSetup:
+    """A task the robot can run, with the options it is planned with: checked once (by
+    :func:`check_task`; errors name ``task.<field>`` or the option), then planned with any number
+    of inverses and parameter sets."""
+
+    model: RobotModel
+    task: CartesianTask
+    options: PlanOptions = field(default_factory=PlanOptions)
+
+    def __post_init__(self) -> None:
+        try:
+            check_task(self.model, self.task)
+        except ParameterError as exc:
+            raise exc.within("task") from None
+        rows = TRACKS[self.task.tracks]
+        if self.options.secondary is not None and self.model.n_joints <= rows:
+            raise ParameterError(
+                "secondary",
+                f"a secondary objective needs a redundant arm: more joints than the {rows} the {self.task.tracks} task "
+                f"tracks (this robot has {self.model.n_joints})",
+            )
+
+    def retimed(self, duration: float) -> PlanSetup:
+        """The same setup with the task's path retimed to ``duration`` s (not checked again: the
+        robot, the start and the limits are the same)."""
+        setup = object.__new__(PlanSetup)
+        for name, value in (("model", self.model), ("task", self.task.with_duration(duration)), ("options", self.options)):
+            object.__setattr__(setup, name, value)
+        return setup
+
+    @cached_property
+    def _args(self) -> tuple[Any, ...]:
+        task, secondary = self.task, self.options.secondary
+        samples = task.samples
+        q0 = np.array(task.q0, dtype=float)
+        return (
+            self.model.chain,
+            q0,
+            samples.twists,
+            samples.p_des,
+            samples.A_des,
+            float(task.dt),
+            float(self.options.feedback_gain),
+        ), (
+            int(TRACKS[task.tracks]),
+            int(secondary.objective_id if secondary is not None else redundancy_kernels.NONE),
+            float(secondary.gain if secondary is not None else 0.0),
+            joint_centres(self.model, q0) if secondary is not None else q0,  # only the joint centering reads it
         )
 
+    def kernel_args(self, inverse: Inverse, params: FloatArray) -> tuple[object, ...]:
+        """The leading arguments of the planner kernels (always of the same types, so each kernel
+        is compiled once) for ``inverse`` with the parameter rows ``params``."""
+        head, tail = self._args
+        return (*head, int(inverse.method_id), params, *tail)
 
-def _kernel_args(
-    model: RobotModel,
-    task: CartesianTask,
-    inverse: RobustInverse,
-    feedback_gain: float,
-    params: FloatArray,
-    secondary: SecondaryObjective | None,
-) -> tuple[object, ...]:
-    """The leading arguments of the planner kernels, checked; always of the same types, so each
-    kernel is compiled once."""
-    _check(model, task, feedback_gain, secondary)
-    samples = task.samples
-    q0 = np.array(task.q0, dtype=float)
-    return (
-        model.chain,
-        q0,
-        samples.twists,
-        samples.p_des,
-        samples.A_des,
-        float(task.dt),
-        float(feedback_gain),
-        int(inverse.method_id),
-        params,
-        int(TRACKS[task.tracks]),
-        int(secondary.objective_id if secondary is not None else redundancy_kernels.NONE),
-        float(secondary.gain if secondary is not None else 0.0),
-        joint_centres(model, q0) if secondary is not None else q0,  # only the joint centering reads it
-    )
+    def metrics(self, raw: FloatArray) -> Metrics[Column]:
+        """The metrics of the kernel's rows ``raw (B, N_METRICS)`` of plans of this setup."""
+        task = self.task
+        return batch_metrics(
+            raw,
+            task.joint_speed_limit,
+            self.options.objective,
+            linear_joint_speed_limit=task.linear_joint_speed_limit,
+            tracks=task.tracks,
+        )
 
 
 def _trace_arrays(n_samples: int, n: int, rows: int) -> tuple[FloatArray, ...]:
@@ -157,9 +231,8 @@ def _trace_arrays(n_samples: int, n: int, rows: int) -> tuple[FloatArray, ...]:
     )
 
 
-def _verdict(
-    metrics: Metrics, position_tolerance: float, attitude_tolerance: float, model: RobotModel | None = None
-) -> tuple[bool, str]:
+def _verdict(metrics: Metrics[float], options: PlanOptions, model: RobotModel | None = None) -> tuple[bool, str]:
+    position_tolerance, attitude_tolerance = options.position_tolerance, options.attitude_tolerance
     problems = []
     if not metrics.finite:
         problems.append(f"the plan diverged at t = {metrics.time_diverged:g} s (non-finite joint rates or poses)")
@@ -200,7 +273,7 @@ def _verdict(
                 f"{metrics.max_linear_joint_speed_joint + 1} (limit {metrics.linear_joint_speed_limit:.4g} m/s)"
             )
         if not metrics.position_limits_respected:
-            j = metrics.position_limit_joint
+            j = int(metrics.position_limit_joint)
             where = f"joint {j + 1}"
             if model is not None:
                 lo, hi = model.lower_limits[j], model.upper_limits[j]
@@ -265,9 +338,8 @@ class PlanResult:
     singular direction (see :mod:`engine.inverses`). After a divergence the samples are NaN.
     """
 
-    method: str
-    params: dict[str, float]
-    feedback_gain: float
+    inverse: Inverse
+    options: PlanOptions
     t: FloatArray  # (N+1,) s
     q: FloatArray  # (N+1, n) rad
     qd: FloatArray  # (N+1, n) rad/s
@@ -283,38 +355,48 @@ class PlanResult:
     singular_values: FloatArray  # (N+1, m) descending
     det_J_g: FloatArray  # (N+1,) nan unless the GJM is square
     damping: FloatArray  # (N+1, m)
-    metrics: Metrics
+    metrics: Metrics[float]
     success: bool
     message: str
     task: CartesianTask = field(repr=False)
-    secondary: SecondaryObjective | None = None
+
+    @property
+    def method(self) -> str:
+        return self.inverse.name
+
+    @property
+    def params(self) -> dict[str, float]:
+        return self.inverse.scalar_params()
+
+    @property
+    def feedback_gain(self) -> float:
+        return self.options.feedback_gain
+
+    @property
+    def secondary(self) -> SecondaryObjective | None:
+        return self.options.secondary
 
 
 def plan(
-    model: RobotModel,
-    task: CartesianTask,
-    inverse: RobustInverse,
-    *,
-    feedback_gain: float = 0.0,
-    weights: tuple[float, float] = (0.5, 0.5),
-    aggregation: str = "max",
-    attitude_term: str = "eq18",
-    position_tolerance: float = POSITION_TOLERANCE_M,
-    attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
-    secondary: SecondaryObjective | None = None,
+    model: RobotModel, task: CartesianTask, inverse: Inverse, options: PlanOptions | None = None, **option_fields: Any
 ) -> PlanResult:
-    """Plan ``task`` with ``inverse`` (and, on a redundant arm, the null-space ``secondary``
-    objective). ``success`` is false (with a message) if the plan diverged, misses the target
-    by more than the tolerances (the attitude only for a pose task), breaks a joint speed limit
-    or leaves a joint's position limits; the arrays and metrics are returned in every case."""
-    objective = Objective(weights, aggregation, attitude_term)
+    """Plan ``task`` with ``inverse`` (options: a :class:`PlanOptions`, or its keywords, see
+    :meth:`PlanOptions.of`). ``success`` is false (with a message) if the plan diverged, misses
+    the target by more than the tolerances (the attitude only for a pose task), breaks a joint
+    speed limit or leaves a joint's position limits; the arrays and metrics are returned in every
+    case."""
+    return run_plan(PlanSetup(model, task, options or PlanOptions.of(**option_fields)), inverse)
+
+
+def run_plan(setup: PlanSetup, inverse: Inverse) -> PlanResult:
+    """The plan of a checked setup (see :func:`plan`), every sample kept."""
+    model, task, options = setup.model, setup.task, setup.options
     samples = task.samples
     trace = _trace_arrays(samples.t.shape[0], model.n_joints, TRACKS[task.tracks])
     raw = np.empty((1, plan_kernels.N_METRICS))
-    args = _kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, 1)[0], secondary)
-    plan_kernels.simulate(*args, True, trace, raw[0])
-    metrics = task_metrics(raw, task, objective).item(0)
-    success, message = _verdict(metrics, position_tolerance, attitude_tolerance, model)
+    plan_kernels.simulate(*setup.kernel_args(inverse, kernel_param_rows(inverse, 1)[0]), True, trace, raw[0])
+    metrics = setup.metrics(raw).item(0)
+    success, message = _verdict(metrics, options, model)
     q, qd, base_p, base_A, ee_p, ee_A, sv, det, damping, pos_err, att_err = trace
     if not success:
         where = _where(
@@ -326,14 +408,13 @@ def plan(
             samples.A_des,
             model.prismatic,
             (task.joint_speed_limit, task.linear_joint_speed_limit),
-            position_tolerance,
-            attitude_tolerance if task.tracks == "pose" else math.inf,
+            options.position_tolerance,
+            options.attitude_tolerance if task.tracks == "pose" else math.inf,
         )
         message = f"{message}; {where}" if where else message
     return PlanResult(
-        method=inverse.name,
-        params=inverse_params(inverse),
-        feedback_gain=feedback_gain,
+        inverse=inverse,
+        options=options,
         t=samples.t.copy(),
         q=q,
         qd=qd,
@@ -353,14 +434,6 @@ def plan(
         success=success,
         message=message,
         task=task,
-        secondary=secondary,
-    )
-
-
-def task_metrics(raw: FloatArray, task: CartesianTask, objective: Objective) -> BatchMetrics:
-    """The metrics of the kernel's rows ``raw (B, N_METRICS)`` of plans of ``task``."""
-    return batch_metrics(
-        raw, task.joint_speed_limit, objective, linear_joint_speed_limit=task.linear_joint_speed_limit, tracks=task.tracks
     )
 
 
@@ -370,14 +443,15 @@ class BatchResult:
 
     method: str
     params: dict[str, FloatArray]
-    metrics: BatchMetrics
+    metrics: Metrics[Column]
 
     @property
     def objective_b(self) -> FloatArray:
         return self.metrics.objective_b
 
 
-def _stack_params(method: str, params: ParamSets) -> dict[str, FloatArray]:
+def stack_params(method: str, params: ParamSets) -> dict[str, FloatArray]:
+    """Parameter sets of ``method`` as ``{name: (B,) values}`` (defaults filled in for a list of dicts)."""
     spec = method_spec(method)
     if isinstance(params, Mapping):
         columns = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in params.items()}
@@ -397,7 +471,7 @@ def _stack_params(method: str, params: ParamSets) -> dict[str, FloatArray]:
 
 
 class EvaluationStoppedError(Exception):
-    """:func:`evaluate` was stopped (its ``stop`` event was set) before every plan was run."""
+    """:func:`evaluate` was stopped (its ``stop`` was set) before every plan was run."""
 
 
 #: Target work of one piece of a stoppable evaluation (s of one thread): a stop request is
@@ -408,31 +482,28 @@ JOINT_STEP_COST_S = 1.2e-6
 
 
 def evaluate(
-    model: RobotModel,
-    task: CartesianTask,
-    inverse: RobustInverse,
+    setup: PlanSetup,
+    inverse: Inverse,
     batch: int,
     *,
-    feedback_gain: float = 0.0,
     threads: int | None = None,
     batch_size: int | None = None,
-    stop: threading.Event | None = None,
-    secondary: SecondaryObjective | None = None,
+    stop: Stop | None = None,
 ) -> FloatArray:
     """The kernel's metrics rows ``(batch, N_METRICS)`` of ``batch`` parameter sets of
     ``inverse`` (array parameters of shape ``(batch,)``), no traces kept. The sets are split
     into pieces of ``batch_size`` (default: about four per thread, for balance: diverging
     plans end early) run on ``threads`` threads (default :func:`default_threads`).
 
-    With a ``stop`` event the pieces are small (about :data:`STOP_LATENCY_S` of work each) and
-    a piece that has not started when ``stop`` is set is skipped: :class:`EvaluationStoppedError`
-    is raised once the running ones end."""
-    args = _kernel_args(model, task, inverse, feedback_gain, kernel_param_rows(inverse, batch), secondary)
+    With a ``stop`` the pieces are small (about :data:`STOP_LATENCY_S` of work each) and a piece
+    that has not started when ``stop`` is set is skipped: :class:`EvaluationStoppedError` is
+    raised once the running ones end."""
+    args = setup.kernel_args(inverse, kernel_param_rows(inverse, batch))
     out = np.empty((batch, plan_kernels.N_METRICS))
     workers = max(1, threads if threads is not None else default_threads())
     size = batch_size or max(1, math.ceil(batch / (4 * workers)))
     if stop is not None and batch_size is None:
-        plan_cost = (task.n_steps + 1) * model.n_joints * JOINT_STEP_COST_S
+        plan_cost = (setup.task.n_steps + 1) * setup.model.n_joints * JOINT_STEP_COST_S
         size = max(1, min(size, int(STOP_LATENCY_S / plan_cost)))
     edges = list(range(0, batch, size)) + [batch]
 
@@ -457,55 +528,34 @@ def plan_batch(
     task: CartesianTask,
     method: str,
     params: ParamSets,
+    options: PlanOptions | None = None,
     *,
     batch_size: int | None = None,
-    feedback_gain: float = 0.0,
-    weights: tuple[float, float] = (0.5, 0.5),
-    aggregation: str = "max",
-    attitude_term: str = "eq18",
     threads: int | None = None,
-    stop: threading.Event | None = None,
-    secondary: SecondaryObjective | None = None,
+    stop: Stop | None = None,
+    **option_fields: Any,
 ) -> BatchResult:
     """Plan many parameter sets of ``method`` and return their metrics (no trajectories: the
     memory is proportional to the number of sets, not to the number of steps).
 
     ``params`` is either ``{name: (B,) values}`` or a list of ``{name: value}`` dicts.
-    ``batch_size``, ``threads`` and ``stop``: see :func:`evaluate`. Each set's result is
-    independent of the batch it runs in.
+    ``batch_size``, ``threads`` and ``stop``: see :func:`evaluate`; options as for :func:`plan`.
+    Each set's result is independent of the batch it runs in.
     """
-    objective = Objective(weights, aggregation, attitude_term)
-    columns = _stack_params(method, params)
+    setup = PlanSetup(model, task, options or PlanOptions.of(**option_fields))
+    columns = stack_params(method, params)
     total = next(iter(columns.values())).shape[0] if columns else max(1, len(params))
     inverse = make_inverse(method, **columns)
-    raw = evaluate(
-        model,
-        task,
-        inverse,
-        total,
-        feedback_gain=feedback_gain,
-        threads=threads,
-        batch_size=batch_size,
-        stop=stop,
-        secondary=secondary,
-    )
-    return BatchResult(method=method, params=columns, metrics=task_metrics(raw, task, objective))
+    raw = evaluate(setup, inverse, total, threads=threads, batch_size=batch_size, stop=stop)
+    return BatchResult(method=method, params=columns, metrics=setup.metrics(raw))
 
 
-def evaluate_tasks(
-    model: RobotModel,
-    tasks: Sequence[CartesianTask],
-    inverse: RobustInverse,
-    *,
-    feedback_gain: float = 0.0,
-    threads: int | None = None,
-    secondary: SecondaryObjective | None = None,
-) -> FloatArray:
-    """The kernel's metrics rows ``(len(tasks), N_METRICS)`` of one parameter set of
-    ``inverse`` on each task (for example one path at several durations), no traces kept, the
-    tasks spread over ``threads`` threads (default :func:`default_threads`)."""
+def evaluate_setups(setups: Sequence[PlanSetup], inverse: Inverse, *, threads: int | None = None) -> FloatArray:
+    """The kernel's metrics rows ``(len(setups), N_METRICS)`` of one parameter set of ``inverse``
+    on each setup (for example one path at several durations), no traces kept, spread over
+    ``threads`` threads (default :func:`default_threads`)."""
     params = kernel_param_rows(inverse, 1)
-    args = [_kernel_args(model, task, inverse, feedback_gain, params, secondary) for task in tasks]
+    args = [setup.kernel_args(inverse, params) for setup in setups]
     out = np.empty((len(args), plan_kernels.N_METRICS))
     workers = max(1, threads if threads is not None else default_threads())
 
@@ -521,18 +571,10 @@ def evaluate_tasks(
     return out
 
 
-def verdicts(
-    raw: FloatArray,
-    tasks: Sequence[CartesianTask],
-    objective: Objective,
-    position_tolerance: float = POSITION_TOLERANCE_M,
-    attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
-    model: RobotModel | None = None,
-) -> list[tuple[Metrics, bool, str]]:
-    """Metrics, success and message of each row of :func:`evaluate_tasks` (``model`` names
-    the joints in the messages)."""
+def verdicts(raw: FloatArray, setups: Sequence[PlanSetup]) -> list[tuple[Metrics[float], bool, str]]:
+    """Metrics, success and message of each row of :func:`evaluate_setups`."""
     out = []
-    for row, task in zip(raw, tasks, strict=True):
-        metrics = task_metrics(row[None], task, objective).item(0)
-        out.append((metrics, *_verdict(metrics, position_tolerance, attitude_tolerance, model)))
+    for row, setup in zip(raw, setups, strict=True):
+        metrics = setup.metrics(row[None]).item(0)
+        out.append((metrics, *_verdict(metrics, setup.options, setup.model)))
     return out

@@ -20,19 +20,9 @@ import math
 from dataclasses import dataclass
 
 from engine.errors import ParameterError
-from engine.inverses import RobustInverse
-from engine.metrics import Objective
-from engine.model import RobotModel
-from engine.planner import (
-    ATTITUDE_TOLERANCE_RAD,
-    POSITION_TOLERANCE_M,
-    PlanResult,
-    evaluate_tasks,
-    plan,
-    verdicts,
-)
-from engine.redundancy import SecondaryObjective
-from engine.trajectory import MAX_DURATION_S, MAX_STEPS, CartesianTask
+from engine.inverses import Inverse
+from engine.planner import PlanResult, PlanSetup, evaluate_setups, run_plan, verdicts
+from engine.trajectory import MAX_DURATION_S, MAX_STEPS
 
 DEFAULT_RELATIVE_TOLERANCE = 0.002
 MAX_CANDIDATES = 64
@@ -56,28 +46,20 @@ class DurationSearch:
 
 
 def shortest_duration(
-    model: RobotModel,
-    task: CartesianTask,
-    inverse: RobustInverse,
+    setup: PlanSetup,
+    inverse: Inverse,
     *,
-    feedback_gain: float = 0.0,
-    weights: tuple[float, float] = (0.5, 0.5),
-    aggregation: str = "max",
-    attitude_term: str = "eq18",
-    position_tolerance: float = POSITION_TOLERANCE_M,
-    attitude_tolerance: float = ATTITUDE_TOLERANCE_RAD,
     relative_tolerance: float = DEFAULT_RELATIVE_TOLERANCE,
     candidates: int = 4,
     max_duration: float | None = None,
     threads: int | None = None,
-    secondary: SecondaryObjective | None = None,
 ) -> DurationSearch:
-    """The shortest duration of ``task``'s path (s) at which ``inverse`` plans it successfully,
-    to ``relative_tolerance``, searched between one step (``task.dt``) and ``max_duration``
-    (default and at most the task limits: 600 s and 20,000 steps); ``candidates`` durations are
-    planned per round. ``success`` is false (with the plan at the longest duration tried) when
-    no duration up to the maximum is feasible."""
-    objective = Objective(weights, aggregation, attitude_term)
+    """The shortest duration of the setup's task path (s) at which ``inverse`` plans it
+    successfully, to ``relative_tolerance``, searched between one step (``task.dt``) and
+    ``max_duration`` (default and at most the task limits: 600 s and 20,000 steps); ``candidates``
+    durations are planned per round. ``success`` is false (with the plan at the longest duration
+    tried) when no duration up to the maximum is feasible."""
+    task = setup.task
     if not (math.isfinite(relative_tolerance) and 0.0 < relative_tolerance <= 0.1):
         raise ParameterError("relative_tolerance", "must be in (0, 0.1]")
     if not 1 <= candidates <= MAX_CANDIDATES:
@@ -100,11 +82,9 @@ def shortest_duration(
         fresh = sorted({min(max(d, lowest), highest) for d in durations} - set(feasible))
         if not fresh:
             return
-        tasks = [task.with_duration(d) for d in fresh]
-        raw = evaluate_tasks(model, tasks, inverse, feedback_gain=feedback_gain, threads=threads, secondary=secondary)
-        for d, (_, ok, message) in zip(
-            fresh, verdicts(raw, tasks, objective, position_tolerance, attitude_tolerance, model), strict=True
-        ):
+        setups = [setup.retimed(d) for d in fresh]
+        raw = evaluate_setups(setups, inverse, threads=threads)
+        for d, (_, ok, message) in zip(fresh, verdicts(raw, setups), strict=True):
             feasible[d] = ok
             verdict_of[d] = message
         evaluations += len(fresh)
@@ -139,18 +119,7 @@ def shortest_duration(
     lo, hi = bracket()
 
     def full_plan(duration: float) -> PlanResult:
-        return plan(
-            model,
-            task.with_duration(duration),
-            inverse,
-            feedback_gain=feedback_gain,
-            weights=weights,
-            aggregation=aggregation,
-            attitude_term=attitude_term,
-            position_tolerance=position_tolerance,
-            attitude_tolerance=attitude_tolerance,
-            secondary=secondary,
-        )
+        return run_plan(setup.retimed(duration), inverse)
 
     if hi is None:
         top = max(feasible)

@@ -41,7 +41,7 @@ import numpy as np
 from deap import base, creator, tools
 
 from engine.errors import ParameterError
-from engine.inverses import check_param, method_spec
+from engine.inverses import method_spec
 from engine.metrics import Metrics, Objective
 from engine.model import RobotModel
 from engine.planner import EvaluationStoppedError, plan_batch
@@ -162,7 +162,7 @@ def check_bounds(method: str, bounds: Mapping[str, Sequence[float]] | None) -> d
         if len(pair) != 2:
             raise ParameterError(f"bounds.{name}", "expected [lo, hi]")
         lo, hi = (float(x) for x in pair)
-        check_param(p, np.array([lo, hi]), f"bounds.{name}")
+        p.check(np.array([lo, hi]), f"bounds.{name}")
         if not lo < hi:
             raise ParameterError(f"bounds.{name}", f"lo must be < hi, got [{lo}, {hi}]")
         out[name] = (lo, hi)

@@ -31,12 +31,11 @@ def warm_up() -> float:
     robot = table1_robot()
     q0 = np.radians([175.0, -60.0, -60.0, 0.0, 210.0, 5.0])
     fk = forward_kinematics(robot, State(q0))
-    task = CartesianTask(
-        q0=q0,
-        start_position=fk.ee_position,
-        start_attitude=fk.ee_attitude,
-        target_position=fk.ee_position + 0.001,
-        target_attitude=fk.ee_attitude,
+    task = CartesianTask.from_q0(
+        robot,
+        q0,
+        fk.ee_position + 0.001,
+        fk.ee_attitude,
         duration=0.5,
         ramp_time=0.1,
         dt=0.25,

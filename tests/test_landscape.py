@@ -35,7 +35,7 @@ def test_cells_are_the_plans_of_their_parameters(robot, task):
 def test_several_tasks_and_a_fixed_parameter(robot, task):
     import dataclasses
 
-    slower = dataclasses.replace(task, duration=20.0, ramp_time=2.0)
+    slower = dataclasses.replace(task, path=dataclasses.replace(task.path, duration=20.0, ramp_time=2.0))
     xs, ys = axis_values(0.01, 0.2, 3), axis_values(0.1, 1.0, 3)
     one = landscape(robot, task, "adaptive", ("lambda_max", xs), ("epsilon", ys))
     other = landscape(robot, slower, "adaptive", ("lambda_max", xs), ("epsilon", ys))

@@ -58,8 +58,8 @@ def test_desired_path_is_a_straight_line_with_fixed_axis(task):
     assert np.abs(cross).max() < 1e-12
     np.testing.assert_allclose(p[-1], task.target_position, atol=1e-12)
     np.testing.assert_allclose(A[-1], task.target_attitude, atol=1e-12)
-    s, _ = task.path_parameter(t)
-    phi = task.rotation_vector
+    s, _ = task.path.path_parameter(t)
+    phi = task.path.rotation_vector
     for si, Ai in zip(s, A, strict=True):
         np.testing.assert_allclose(Ai, exp_so3(si * phi) @ task.start_attitude, atol=1e-12)
 
@@ -68,16 +68,16 @@ def test_desired_path_is_a_straight_line_with_fixed_axis(task):
 def test_profiles(task, profile):
     import dataclasses
 
-    t2 = dataclasses.replace(task, profile=profile)
+    t2 = dataclasses.replace(task, path=dataclasses.replace(task.path, profile=profile))
     t = np.linspace(0, t2.duration, 2001)
-    s, sdot = t2.path_parameter(t)
+    s, sdot = t2.path.path_parameter(t)
     assert s[0] == 0.0 and abs(s[-1] - 1.0) < 1e-12
     assert np.all(np.diff(s) >= -1e-15) and sdot[0] == 0.0
     np.testing.assert_allclose(np.gradient(s, t), sdot, atol=2e-3)
     # The commanded twists integrate exactly to the target.
     np.testing.assert_allclose(
         t2.step_twists().sum(axis=0) * t2.dt,
-        np.concatenate([t2.target_position - t2.start_position, t2.rotation_vector]),
+        np.concatenate([t2.target_position - t2.start_position, t2.path.rotation_vector]),
         atol=1e-12,
     )
 
@@ -213,10 +213,16 @@ def test_unreachable_target_is_a_failed_result_not_an_exception(robot, task):
 def test_task_validation(task, changes, field):
     import dataclasses
 
-    kwargs = {f.name: getattr(task, f.name) for f in dataclasses.fields(task) if f.init}
-    kwargs.update(changes)
+    path_fields = {f.name for f in dataclasses.fields(task.path) if f.init}
     with pytest.raises(ValueError, match=field):
-        CartesianTask(**kwargs)
+        path = dataclasses.replace(task.path, **{k: v for k, v in changes.items() if k in path_fields})
+        CartesianTask(
+            **{
+                **{f.name: getattr(task, f.name) for f in dataclasses.fields(task)},
+                "path": path,
+                **{k: v for k, v in changes.items() if k not in path_fields},
+            }
+        )
 
 
 def test_task_joint_count_must_match(robot, task):

@@ -35,7 +35,11 @@ def test_replay_agrees_with_the_plan(robot, planned):
 
 def test_compiled_replay_matches_the_scipy_replay(robot, task):
     """The compiled DOP853 against ``solve_ivp`` with the numpy right-hand side of the oracle."""
-    result = plan(robot, dataclasses.replace(task, duration=5.0, ramp_time=1.0), make_inverse("dls", **{"lambda": 0.05}))
+    result = plan(
+        robot,
+        dataclasses.replace(task, path=dataclasses.replace(task.path, duration=5.0, ramp_time=1.0)),
+        make_inverse("dls", **{"lambda": 0.05}),
+    )
     ours = replay(robot, result)
     theirs = oracle_replay(robot, result)
     np.testing.assert_allclose(ours.ee_position, theirs.ee_position, atol=1e-10)

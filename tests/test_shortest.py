@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 
-from engine import CartesianTask, make_inverse, plan, shortest_duration
+from engine import CartesianTask, PlanSetup, make_inverse, plan, shortest_duration
 from engine.errors import ParameterError
 from engine.paths import SpeedLimits
 from engine.spatial import axis_angle_rotation
@@ -31,12 +31,12 @@ def _check_boundary(robot, task, inverse, found):
 
 def test_paper_line_shortest_duration(robot, task):
     inverse = make_inverse("adaptive", lambda_max=0.06, epsilon=0.12)
-    found = shortest_duration(robot, task, inverse)
+    found = shortest_duration(PlanSetup(robot, task), inverse)
     _check_boundary(robot, task, inverse, found)
     assert "joint speed limit broken" in found.limiting  # the speed limit binds on this line
     assert found.duration < task.duration  # 15 s has room to spare
     # one candidate per round (plain bisection) finds the same boundary
-    single = shortest_duration(robot, task, inverse, candidates=1, relative_tolerance=0.001)
+    single = shortest_duration(PlanSetup(robot, task), inverse, candidates=1, relative_tolerance=0.001)
     assert single.duration == pytest.approx(found.duration, rel=0.003)
     assert single.rounds > found.rounds
 
@@ -53,13 +53,13 @@ def test_waypoint_path_shortest_duration(robot):
         limits=SpeedLimits(0.03, math.radians(3.0), 0.01, math.radians(1.0)),
     )
     inverse = make_inverse("adaptive", lambda_max=0.02753, epsilon=0.1736)
-    found = shortest_duration(robot, task, inverse, candidates=3)
+    found = shortest_duration(PlanSetup(robot, task), inverse, candidates=3)
     _check_boundary(robot, task, inverse, found)
     assert found.evaluations <= 3 * found.rounds
 
 
 def test_no_feasible_duration_is_a_failed_result(robot, task):
-    found = shortest_duration(robot, task, make_inverse("adaptive", lambda_max=0.06, epsilon=0.12), max_duration=5.0)
+    found = shortest_duration(PlanSetup(robot, task), make_inverse("adaptive", lambda_max=0.06, epsilon=0.12), max_duration=5.0)
     assert not found.success and found.duration == 5.0
     assert "no feasible duration up to 5 s" in found.message and not found.plan.success
     assert math.isnan(found.relative_gap)
@@ -67,7 +67,7 @@ def test_no_feasible_duration_is_a_failed_result(robot, task):
 
 def test_a_motionless_task_is_feasible_in_one_step(robot, task):
     still = CartesianTask.from_q0(robot, task.q0, task.start_position, task.start_attitude)
-    found = shortest_duration(robot, still, make_inverse("dls"))
+    found = shortest_duration(PlanSetup(robot, still), make_inverse("dls"))
     assert found.success and found.duration == still.dt and math.isnan(found.infeasible_duration)
     assert "one step" in found.message
 
@@ -83,7 +83,7 @@ def test_a_motionless_task_is_feasible_in_one_step(robot, task):
 )
 def test_search_settings_are_checked(robot, task, kwargs, field):
     with pytest.raises(ParameterError, match=field):
-        shortest_duration(robot, task, make_inverse("dls"), **kwargs)
+        shortest_duration(PlanSetup(robot, task), make_inverse("dls"), **kwargs)
 
 
 def test_an_unreachable_path_fails_saying_where(robot):
@@ -132,4 +132,4 @@ def test_path_not_tracked_fails_even_if_the_target_is_reached(robot):
     assert m.position_error_max > 0.05
     assert not result.success and result.message.startswith("path not tracked")
     first = float(re.search(r"first failed at t = ([0-9.]+) s", result.message).group(1))
-    assert 0.0 < first < task.followed.segment_times[0]  # on the way out
+    assert 0.0 < first < task.path.segment_times[0]  # on the way out

@@ -155,7 +155,7 @@ def test_paper_task_adaptive_beats_tuned_dls(robot, task):
 def test_several_tasks(robot, task):
     import dataclasses
 
-    slower = dataclasses.replace(task, duration=20.0, ramp_time=2.0)
+    slower = dataclasses.replace(task, path=dataclasses.replace(task.path, duration=20.0, ramp_time=2.0))
     mean = tune(robot, [task, slower], "dls", population=6, generations=2, seed=2)
     worst = tune(robot, [task, slower], "dls", population=6, generations=2, seed=2, task_aggregation="max")
     assert len(mean.best_metrics) == 2

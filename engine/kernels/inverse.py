@@ -5,7 +5,7 @@ give the same gain: ``lambda_i = sqrt(sigma_i / g_i - sigma_i^2)``, 0 where unda
 Methods are chosen by number (the Python strategies in :mod:`engine.inverses` carry it) with
 their parameters in a float array:
 
-- ``PLAIN`` (rcond): ``g_i = 1 / sigma_i`` where ``sigma_i > rcond sigma_1``, else 0 (paper eq. 3).
+- ``PLAIN`` (no parameter): ``g_i = 1 / sigma_i`` where ``sigma_i > RCOND sigma_1``, else 0 (paper eq. 3).
 - ``DLS`` (lambda): ``g_i = sigma_i / (sigma_i^2 + lambda^2)`` (paper eqs. 6 and 10).
 - ``ADAPTIVE`` (lambda_max, epsilon): DLS with ``lambda_i = lambda_max (1 + cos(pi sigma_i /
   epsilon)) / 2`` where ``sigma_i < epsilon``, else 0 (paper eq. 16).
@@ -26,6 +26,7 @@ from engine.kernels.svd import jacobi_svd, svd_buffers
 PLAIN, DLS, ADAPTIVE, WDLS, SDLS, SVF = 0, 1, 2, 3, 4, 5
 MAX_PARAMS = 2
 TINY = 1e-300
+RCOND = 1e-12  # the plain inverse drops singular values below RCOND sigma_1
 
 
 @kernel
@@ -76,7 +77,7 @@ def apply_inverse(method, params, J, U, s, V, xdot, qd, damping, scratch):
         _sdls(params[0], J, U, s, V, proj, qd, damping)
         return
     if method == PLAIN:
-        cut = params[0] * s[0]
+        cut = RCOND * s[0]
         for i in range(m):
             gain[i] = 1.0 / s[i] if s[i] > cut else 0.0
             damping[i] = 0.0

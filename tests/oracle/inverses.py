@@ -297,6 +297,10 @@ CLASSES: dict[str, type] = {
 
 def make_inverse(name: str, **params: Any) -> Any:
     """The numpy strategy ``name`` with the engine's parameter names, defaults and checks."""
-    checked = engine_inverses.make_inverse(name, **params)
-    fields = {p.field: getattr(checked, p.field) for p in engine_inverses.method_spec(name).params}
+    checked = engine_inverses.make_inverse(name, **params).params()
+    fields = {FIELDS.get(key, key): value for key, value in checked.items()}
     return CLASSES[name](**fields)
+
+
+#: The oracle's constructor arguments of the engine's public parameter names.
+FIELDS = {"lambda": "lam", "lambda_max": "lam_max"}

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from engine.errors import ParameterError
-from engine.metrics import AGGREGATIONS, BatchMetrics, Objective
+from engine.metrics import AGGREGATIONS, Column, Metrics, Objective
 from oracle.spatial import FloatArray
 
 
@@ -45,7 +45,7 @@ def compute_metrics(
     abs_det: FloatArray,
     joint_speed_limit: float,
     settings: Objective,
-) -> BatchMetrics:
+) -> Metrics[Column]:
     """Metrics of ``B`` plans from per-sample series ``(B, N+1)`` (position error m, attitude
     angle rad, eq. 18 coupled error m rad) and per-joint peak speeds ``joint_speed_peak (B, n)``
     (rad/s, absolute); ``settings`` says how ``B`` is formed."""
@@ -64,7 +64,8 @@ def compute_metrics(
     i_det = np.argmin(det, axis=-1)
     rows = np.arange(position_errors.shape[0])
     square = bool(np.any(np.isfinite(abs_det)))
-    return BatchMetrics(
+    none = np.full(rows.shape, -1)
+    return Metrics[Column](
         position_error_max=aggregate(position_errors, "max"),
         position_error_rms=aggregate(position_errors, "rms"),
         position_error_final=aggregate(position_errors, "final"),
@@ -90,4 +91,14 @@ def compute_metrics(
         attitude_term=settings.attitude_term,
         finite=finite,
         time_diverged=np.full(rows.shape, np.nan),
+        max_linear_joint_speed=np.zeros(rows.shape),
+        max_linear_joint_speed_joint=none,
+        linear_joint_speed_limit=float("inf"),
+        position_limits_respected=np.ones(rows.shape, dtype=bool),
+        position_limit_joint=none,
+        time_position_limit_left=np.full(rows.shape, np.nan),
+        position_limit_excess=np.full(rows.shape, np.nan),
+        base_rotation_max=np.full(rows.shape, np.nan),
+        base_rotation_final=np.full(rows.shape, np.nan),
+        tracks="pose",
     )

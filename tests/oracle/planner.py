@@ -20,16 +20,17 @@ from typing import Any
 import numpy as np
 
 from engine.errors import ParameterError
-from engine.inverses import inverse_params
+from engine.inverses import make_inverse
 from engine.kernels.redundancy import NULL_SPACE_DAMPING
+from engine.metrics import Column, Metrics
 from engine.model import RobotModel
-from engine.planner import ATTITUDE_TOLERANCE_RAD, POSITION_TOLERANCE_M, PlanResult, _verdict
+from engine.planner import ATTITUDE_TOLERANCE_RAD, POSITION_TOLERANCE_M, PlanOptions, PlanResult, _verdict
 from engine.redundancy import joint_centres
 from engine.trajectory import TRACKS, CartesianTask
 from oracle.inverses import SVD, thin_svd
 from oracle.jacobian import gjm_batch
 from oracle.kinematics import kinematics_about_com, kinematics_batch, system_com
-from oracle.metrics import BatchMetrics, Objective, compute_metrics
+from oracle.metrics import Objective, compute_metrics
 from oracle.spatial import FloatArray, exp_so3, log_so3
 
 SUBSTEP_ANGLE = 0.25
@@ -211,7 +212,7 @@ def _errors(trace: _Trace) -> _Errors:
     )
 
 
-def _batch_metrics(task: CartesianTask, trace: _Trace, errors: _Errors, objective: Objective) -> BatchMetrics:
+def _batch_metrics(task: CartesianTask, trace: _Trace, errors: _Errors, objective: Objective) -> Metrics[Column]:
     peak = np.max(np.abs(trace.qd), axis=1)
     return compute_metrics(
         trace.t,
@@ -248,11 +249,11 @@ def plan(
     trace = _simulate(model, task, inverse, 1, feedback_gain, integrator, substep_angle, secondary)
     errors = _errors(trace)
     metrics = _batch_metrics(task, trace, errors, objective).item(0)
-    success, message = _verdict(metrics, position_tolerance, attitude_tolerance)
+    options = PlanOptions(feedback_gain, objective, secondary, position_tolerance, attitude_tolerance)
+    success, message = _verdict(metrics, options)
     return PlanResult(
-        method=inverse.name,
-        params=inverse_params(inverse),
-        feedback_gain=feedback_gain,
+        inverse=make_inverse(inverse.name, **inverse.params()),
+        options=options,
         t=trace.t,
         q=trace.q[0],
         qd=trace.qd[0],
