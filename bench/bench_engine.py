@@ -89,7 +89,8 @@ RSS_SCRIPT = textwrap.dedent(
     from engine import CartesianTask, tune
     from engine.kinematics import as_state, forward_kinematics
     from robots import random_robot
-    import service.jobs  # the worker's imports
+    import service.usecases.tuning_run  # the worker's imports
+    from engine.tuning import Termination
 
     engine.warm_up()
     rng = np.random.default_rng(7)
@@ -104,7 +105,7 @@ RSS_SCRIPT = textwrap.dedent(
             return next(int(line.split()[1]) for line in status if line.startswith("VmHWM")) / 1024
 
     before = peak_mib()
-    result = tune(robot, task, "adaptive", population=1000, generations=1, seed=0, callback=lambda p: True)
+    result = tune(robot, task, "adaptive", population=1000, generations=1, seed=0, termination=Termination(0))
     after = peak_mib()
     print(json.dumps({{"before": before, "after": after, "evaluations": result.evaluations, "steps": task.n_steps,
                       "seconds": result.elapsed_s}}))

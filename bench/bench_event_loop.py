@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 
 from engine import make_inverse, paper_task, plan, table1_robot
-from service.convert import trajectory_out
 from service.infra import jsonio
+from service.schemas.plans import Trajectory
+from service.usecases.plans import record_of
 
 THREADS, BODIES_PER_THREAD, TICK_S = 8, 3, 0.005
 
@@ -30,9 +31,15 @@ THREADS, BODIES_PER_THREAD, TICK_S = 8, 3, 0.005
 def plan_body() -> dict[str, Any]:
     """The body of a 20,000-step plan: the paper's line stretched to 500 s, dt 0.025 s."""
     robot = table1_robot()
-    task = dataclasses.replace(paper_task(robot), duration=500.0, ramp_time=50.0, dt=0.025)
+    paper = paper_task(robot)
+    task = dataclasses.replace(paper, path=dataclasses.replace(paper.path, duration=500.0, ramp_time=50.0), dt=0.025)
     result = plan(robot, task, make_inverse("adaptive", lambda_max=0.0571, epsilon=0.0677))
-    return {"id": "bench", "success": result.success, "message": result.message, "trajectory": trajectory_out(result)}
+    return {
+        "id": "bench",
+        "success": result.success,
+        "message": result.message,
+        "trajectory": Trajectory.arrays(record_of(result, robot.prismatic)),
+    }
 
 
 async def lags_while(work: Callable[[], object]) -> tuple[np.ndarray, float]:

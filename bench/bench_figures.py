@@ -8,7 +8,6 @@ benchmarks; this one is separate).
 
 from __future__ import annotations
 
-import json
 import math
 import time
 
@@ -16,8 +15,10 @@ import numpy as np
 
 from engine import CartesianTask, make_inverse, paper_task, plan, table1_robot
 from service import figures
-from service.convert import metrics_out, trajectory_out
-from service.infra import jsonio
+from service.infra.storage import pack_trajectory, unpack_trajectory
+from service.schemas.methods import MethodOut
+from service.schemas.plans import metrics_out
+from service.usecases.plans import record_from_storage, record_of
 
 DURATION_S, DT_S = 500.0, 0.025
 
@@ -39,18 +40,16 @@ def main() -> None:
     start = time.perf_counter()
     result = plan(robot, task, make_inverse("adaptive", lambda_max=0.0571, epsilon=0.0677))
     print(f"plan: {len(result.t) - 1} steps in {time.perf_counter() - start:.2f} s ({result.message})")
-    stored = {
-        "id": "bench",
-        "method": {"name": result.method, "params": result.params},
-        "metrics": metrics_out(result.metrics),
-        "request": {},
-        "trajectory": trajectory_out(result),
-        "robot": robot.to_dict(),  # the arm of the 3D view
-    }
-    text = jsonio.dumps_text(stored)
+    stored = pack_trajectory(record_of(result, robot.prismatic))
     start = time.perf_counter()
-    data = figures.PlanData(json.loads(text))
-    print(f"stored JSON: {len(text) / 1e6:.1f} MB, decoded to arrays in {time.perf_counter() - start:.3f} s")
+    data = figures.PlanData(
+        record_from_storage(unpack_trajectory(stored)),
+        plan_id="bench",
+        method=MethodOut.from_engine(result.inverse, None).model_dump(mode="json"),
+        metrics=metrics_out(result.metrics),
+        robot=robot.to_dict(),  # the arm of the 3D view
+    )
+    print(f"stored record: {len(stored) / 1e6:.1f} MB, decoded to arrays in {time.perf_counter() - start:.3f} s")
     print(f"{'figure':<18} {'svg [s]':>8} {'svg [kB]':>9} {'png [s]':>8} {'png [kB]':>9}")
     totals = {"svg": 0.0, "png": 0.0}
     for name in figures.PLAN_FIGURES:

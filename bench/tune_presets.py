@@ -1,5 +1,5 @@
 """Tune the adaptive damping of the inspection presets (``GET /v1/task-presets``) with the
-paper's GA and compare with the parameters stored in ``service/routers/tasks.py``.
+paper's GA and compare with the parameters stored in ``service/usecases/presets.py``.
 
 Each preset with a stated method is tuned on its task (population 16, 10 generations, seed 1,
 B with weights (0.5, 0.5), max aggregation, angle attitude term: the settings the stored
@@ -17,8 +17,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from engine import make_inverse, plan, replay, table1_robot, tune, warm_up
-from service.convert import build_task
-from service.routers.tasks import PRESETS
+from service.usecases.presets import PRESETS
 
 POPULATION, GENERATIONS, SEED = 16, 10, 1
 
@@ -28,13 +27,13 @@ def main(names: list[str]) -> None:
     model = table1_robot()
     for name in names or [n for n, p in PRESETS.items() if p.method is not None]:
         preset = PRESETS[name]
-        task = build_task(model, preset.task)
+        task = preset.task.to_engine(model)
         start = time.perf_counter()
         tuned = tune(model, task, "adaptive", population=POPULATION, generations=GENERATIONS, seed=SEED)
         elapsed = time.perf_counter() - start
         print(f"{name}: {task.kind}, {task.duration:.4g} s, {task.n_steps} steps; GA {elapsed:.1f} s, {tuned.evaluations} plans")
         print(f"  tuned  {tuned.best_params}  B = {tuned.best_objective_b:.6g}  ({tuned.message})")
-        stored = preset.method.params if preset.method else {}
+        stored = preset.method.params.given() if preset.method else {}
         for label, params in (("stored", stored), ("tuned", tuned.best_params)):
             result = plan(model, task, make_inverse("adaptive", **params))
             check = replay(model, result)

@@ -105,15 +105,7 @@ def landscape(
         others[name].check(np.array([value]), f"fixed.{name}")
     if task_aggregation not in TASK_AGGREGATIONS:
         raise ParameterError("task_aggregation", f"must be one of {', '.join(TASK_AGGREGATIONS)}")
-    settings = options or PlanOptions.of(**option_fields)
-    setups = []
-    for i, task in enumerate(task_list):
-        try:
-            setups.append(PlanSetup(model, task, settings))
-        except ParameterError as exc:
-            if exc.field.startswith("task."):  # this task's error: named by its index
-                raise ParameterError(f"tasks[{i}]{exc.field[4:]}", exc.reason) from None
-            raise
+    setups = PlanSetup.of_tasks(model, task_list, options or PlanOptions.of(**option_fields))
 
     start = time.perf_counter()
     grid_x, grid_y = np.meshgrid(x_values, y_values, indexing="ij")

@@ -168,6 +168,20 @@ class PlanSetup:
                 f"tracks (this robot has {self.model.n_joints})",
             )
 
+    @classmethod
+    def of_tasks(cls, model: RobotModel, tasks: Sequence[CartesianTask], options: PlanOptions) -> list[PlanSetup]:
+        """The setup of each task (several tasks of one tuning or landscape): a task's error names
+        it by its index (``tasks[2].q0``)."""
+        setups = []
+        for i, task in enumerate(tasks):
+            try:
+                setups.append(cls(model, task, options))
+            except ParameterError as exc:
+                if exc.field.startswith("task."):
+                    raise ParameterError(f"tasks[{i}]{exc.field[4:]}", exc.reason) from None
+                raise
+        return setups
+
     def retimed(self, duration: float) -> PlanSetup:
         """The same setup with the task's path retimed to ``duration`` s (not checked again: the
         robot, the start and the limits are the same)."""

@@ -54,10 +54,13 @@ INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
 
 
 class UrdfError(ParameterError):
-    """A URDF the engine cannot use; ``element`` names it (``<joint name="elbow">``)."""
+    """A URDF the engine cannot use; ``element`` names it (``<joint name="elbow">``) and ``field``
+    the argument of :meth:`engine.model.RobotModel.from_urdf` at fault (``end_effector_link``, or the
+    document: ``urdf``)."""
 
     def __init__(self, element: str, reason: str) -> None:
-        super().__init__(element, reason)
+        super().__init__("end_effector_link" if "end_effector_link" in reason else "urdf", reason)
+        self.args = (f"{element}: {reason}",)
         self.element = element
 
 

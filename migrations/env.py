@@ -10,8 +10,8 @@ from alembic import context
 from sqlalchemy import text
 
 from service.infra.db import make_engine
-from service.models import Base
 from service.infra.settings import Settings
+from service.models import Base
 
 config = context.config
 target_metadata = Base.metadata

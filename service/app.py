@@ -21,10 +21,11 @@ from service import errors, openapi
 from service.infra import observability, security
 from service.infra.admission import Admission
 from service.infra.db import Database
-from service.infra.migrate import seed_presets
 from service.infra.retention import Sweeper
 from service.infra.settings import Settings
 from service.routers import docs, figures, health, job_events, landscapes, metrics, plans, robots, shortest, tasks, tuning, web
+from service.usecases.plans import rehearse
+from service.usecases.robots import seed_presets
 
 DESCRIPTION = """
 Singularity-robust Cartesian path planning for free-floating space robots.
@@ -91,7 +92,7 @@ class Kernels:
             self.ready.set()
             return
         try:
-            plans.rehearse(self.db, self.settings)
+            rehearse(self.db, self.settings)
             asyncio.run(self._visit_routers())
         except Exception as exc:  # e.g. not migrated yet: /readyz reports the database itself
             log.info("request rehearsal skipped: %s: %s", type(exc).__name__, exc)

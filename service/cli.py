@@ -131,7 +131,8 @@ def display_url(url: str) -> str:
 
 def migrate(settings: Settings, revision: str, say: Say) -> int:
     from service.infra.db import Database
-    from service.infra.migrate import MigrationError, seed_presets, upgrade
+    from service.infra.migrate import MigrationError, upgrade
+    from service.usecases.robots import seed_presets
 
     try:
         upgrade(settings.database_url, revision)

@@ -1,23 +1,27 @@
-"""FastAPI dependencies: the database session and settings of the running app, and the route
-class that gives a handler's session back as soon as the handler returns."""
+"""FastAPI dependencies and what the routers share: the database session and settings of the
+running app, the route class that gives a handler's session back as soon as the handler returns,
+query parameters, admission of heavy work, and image responses."""
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import inspect
 from collections.abc import Callable, Iterator
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, Literal
 
-from fastapi import Depends, Path, Query, Request, Response, status
+from fastapi import Depends, Path, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
 from fastapi.routing import APIRoute
-from sqlalchemy import delete
 from sqlalchemy.orm import Session
 from starlette.convertors import Convertor, register_url_convertor
+from typing_extensions import TypeAliasType
 
-from service.errors import MAX_OFFSET, NotFoundError
+from service import figures
+from service.errors import MAX_OFFSET, ApiError
 from service.infra.db import Database
 from service.infra.settings import Settings
-from service.models import Base
+from service.schemas.plans import PLAN_SECTIONS
 
 
 class IdConvertor(Convertor[str]):
@@ -92,20 +96,77 @@ class SessionRoute(APIRoute):
         super().__init__(path, endpoint, **kwargs)
 
 
-RowT = TypeVar("RowT", bound=Base)
+_SECTION = "(" + "|".join(PLAN_SECTIONS) + ")"
+#: A comma-separated list of sections (spaces and empty items allowed), or nothing.
+SECTIONS_PATTERN = rf"^\s*{_SECTION}?\s*(,\s*{_SECTION}?\s*)*$"
+FieldsQuery = Annotated[
+    str | None,
+    Query(
+        max_length=200,
+        # In the document only: parse_fields names the unknown sections in its 422.
+        json_schema_extra={"pattern": SECTIONS_PATTERN},
+        description="comma-separated sections of the plan to return besides its summary (id, method, success, "
+        f"message, metrics, ...): any of {', '.join(f'`{name}`' for name in PLAN_SECTIONS)}; default all, "
+        "empty for the summary only",
+        examples=["replay"],
+    ),
+]
 
 
-def load_row(session: Session, model: type[RowT], row_id: str, kind: str) -> RowT:
-    """The row ``row_id`` of ``model``, or a 404 naming the ``kind`` of thing it is."""
-    row = session.get(model, row_id)
-    if row is None:
-        raise NotFoundError(kind, row_id)
-    return row
+async def run_admitted(request: Request, work: Callable[[], Response]) -> Response:
+    """Run ``work()`` in the thread pool once the plan admission lets it in."""
+    async with request.app.state.plan_admission.slot():
+        response: Response = await run_in_threadpool(work)
+        return response
 
 
-def delete_row(session: Session, model: type[Base], row_id: str, kind: str) -> Response:
-    """Delete the row ``row_id`` of ``model``: 204, or a 404 naming the ``kind``."""
-    statement = delete(model).where(model.__table__.c.id == row_id)
-    if session.execute(statement).rowcount == 0:  # type: ignore[attr-defined]
-        raise NotFoundError(kind, row_id)
-    return Response(status_code=status.HTTP_204_NO_CONTENT)
+FigureFormat = TypeAliasType("FigureFormat", Literal["svg", "png"])
+assert set(FigureFormat.__value__.__args__) == set(figures.FORMATS)
+Format = Annotated[FigureFormat, Query(description="`svg` (default, image/svg+xml) or `png` (image/png)")]
+MAX_COMPARE = 8
+
+
+def figure_name(names: tuple[str, ...] | list[str]) -> Any:
+    """A figure name in the path: an enum in the document (so clients type it); an unknown name
+    is still answered by the handler, a 404 whose ``valid_names`` lists the names."""
+    return Path(description="the figure", json_schema_extra={"enum": list(names)})
+
+
+#: The image (binary: SVG is text, but clients should store the bytes as they come), and a 304
+#: for a conditional request whose ``If-None-Match`` names the current ``ETag``.
+IMAGE_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "the figure: SVG (`format=svg`, the default) or PNG (`format=png`)",
+        "content": {media: {"schema": {"type": "string", "format": "binary"}} for media in ("image/svg+xml", "image/png")},
+        "headers": {
+            "ETag": {"description": "the figure's version; send it back in `If-None-Match`", "schema": {"type": "string"}},
+            "Cache-Control": {
+                "description": "`public, max-age=86400` for plan figures (a plan never changes), `no-cache` for a job's",
+                "schema": {"type": "string"},
+            },
+        },
+    },
+    304: {"description": "not modified: `If-None-Match` names the current `ETag`"},
+}
+
+
+class UnknownFigureError(ApiError):
+    def __init__(self, name: str, valid: tuple[str, ...] | list[str]) -> None:
+        super().__init__(
+            404,
+            f"unknown figure {name!r}; valid names: {', '.join(valid)}",
+            type_="https://spacearm.example/problems/unknown-figure",
+            valid_names=list(valid),
+        )
+
+
+def image_response(request: Request, content: bytes, fmt: str, hit: bool, immutable: bool) -> Response:
+    etag = '"' + hashlib.sha1(content).hexdigest() + '"'
+    headers = {
+        "ETag": etag,
+        "X-Figure-Cache": "hit" if hit else "miss",
+        "Cache-Control": "public, max-age=86400" if immutable else "no-cache",
+    }
+    if request.headers.get("if-none-match") == etag:
+        return Response(status_code=304, headers=headers)
+    return Response(content, media_type=figures.FORMATS[fmt], headers=headers)

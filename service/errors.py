@@ -13,7 +13,9 @@ from sqlalchemy.exc import DataError, DBAPIError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from engine.errors import ParameterError
 from service.infra.db import DatabaseUnavailableError, is_locked, unavailable_reason
+from service.schemas.common import API_LOCATION, field_path
 
 PROBLEM_JSON = "application/problem+json"
 PROBLEM_BASE = "https://spacearm.example/problems/"
@@ -143,6 +145,21 @@ def install(app: FastAPI) -> None:
         return problem(
             exc.status, exc.detail, type_=exc.type_, title=exc.title, instance=request.url.path, headers=exc.headers, **exc.extra
         )
+
+    @app.exception_handler(ParameterError)
+    async def _engine_refused(request: Request, exc: ParameterError) -> JSONResponse:
+        # The engine names its own fields; the schema that converted the input gave the API location
+        # (service.schemas.common.located). An error from outside any schema's conversion is placed
+        # under the body by its engine name.
+        loc = getattr(exc, API_LOCATION, None) or ["body", *field_path(exc.field)]
+        item = field_error(loc, exc.reason)
+        shown = (
+            item["field"].split(".", 1)[1] if loc[0] in ("body", "query", "path", "header") and len(loc) > 1 else item["field"]
+        )
+        element = getattr(exc, "element", None)  # a URDF error names the element at fault
+        text = f"{element}: {exc.reason}" if element else exc.reason
+        extra = {"element": element} if element else {}
+        return problem(422, f"{shown}: {text}", instance=request.url.path, errors=[item], **extra)
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:

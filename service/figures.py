@@ -1,7 +1,7 @@
 """The paper's figures rendered from stored plan and tuning-job JSON (matplotlib, Agg backend).
 
-Every plan figure is a function of the plan's stored ``trajectory`` (the body of
-``GET /v1/plans/{id}``), so figures never re-run the engine. Conventions:
+Every plan figure is a function of the plan's stored record (its SI arrays, see
+:class:`PlanData`), so figures never re-run the planner. Conventions:
 
 * time on the x axis in s; joint angles and speeds in deg and deg/s; positions in mm;
   attitudes in deg (rotation vectors); one legend entry per joint / component.
@@ -48,7 +48,9 @@ from engine.spatial import log_so3, quaternion_to_matrix
 
 FORMATS = {"svg": "image/svg+xml", "png": "image/png"}
 MAX_POINTS = 2000
-DEFAULT_SINGULAR_THRESHOLD = next(p.default for p in METHODS["adaptive"].params if p.name == "epsilon")
+DEFAULT_SINGULAR_THRESHOLD = METHODS["adaptive"].param("epsilon").default
+#: How a threshold parameter is written on the figures.
+SYMBOLS = {"epsilon": "ε", "sigma0": "σ0"}
 SHADE_COLOR = "#f4a261"
 FIGSIZE = (8.0, 5.6)
 DPI = 110
@@ -66,39 +68,43 @@ matplotlib.rcParams.update(
 
 
 class PlanData:
-    """Numpy views of a stored plan (``trajectory`` arrays, or lists with nulls as NaN)."""
+    """A stored plan as the figures read it: its SI record (:func:`service.usecases.plans.record_of`:
+    joints in rad or m, attitudes as quaternions) and what describes it (method, metrics, request,
+    and the robot's parameters, to draw the arm)."""
 
-    def __init__(self, plan: dict[str, Any]) -> None:
-        self.id = str(plan.get("id", ""))
-        traj = plan["trajectory"]
-        self.method: dict[str, Any] = plan.get("method") or {}
-        self.metrics: dict[str, Any] = plan.get("metrics") or {}
-        self.request: dict[str, Any] = plan.get("request") or {}
-        self.robot: dict[str, Any] | None = plan.get("robot")  # the robot's parameters, for drawing the arm
-        self.t = _arr(traj["t_s"])
-        self.q_deg = _arr(traj["joint_angles_deg"], 2)
-        self.qd_deg_s = _arr(traj["joint_velocities_deg_s"], 2)
-        # joint positions in SI (rad, and m for prismatic joints, which are NaN in q_deg)
-        q_m, qd_m = traj.get("joint_displacements_m"), traj.get("joint_velocities_m_s")
-        #: ``(n,)`` which joints are prismatic: their columns are in the ``_m`` arrays, NaN in the degree ones
-        self.prismatic = np.zeros(self.q_deg.shape[1:], dtype=bool)
-        if q_m is not None:
-            self.prismatic = np.isfinite(_arr(q_m, 2)).any(axis=0)
-        q = np.radians(self.q_deg)
-        self.q = np.where(self.prismatic, _arr(q_m, 2), q) if q_m is not None else q
-        qd = np.radians(self.qd_deg_s)
-        self.qd = np.where(self.prismatic, _arr(qd_m, 2), qd) if qd_m is not None else qd
-        self.base_position = _arr(traj["base_position_m"], 2)
-        self.base_quat = _arr(traj["base_attitude_quaternion"], 2)
-        self.ee_position = _arr(traj["ee_position_m"], 2)
-        self.ee_position_desired = _arr(traj["ee_position_desired_m"], 2)
-        self.ee_quat = _arr(traj["ee_attitude_quaternion"], 2)
-        self.ee_quat_desired = _arr(traj["ee_attitude_desired_quaternion"], 2)
-        self.singular_values = _arr(traj["singular_values"], 2)
-        self.det = _arr(traj["det_gjm"])
-        self.damping = _arr(traj["damping"], 2)
-        self.position_error = _arr(traj["position_error_m"])
-        self.attitude_error = _arr(traj["attitude_error_rad"])
+    def __init__(
+        self,
+        record: dict[str, np.ndarray],
+        *,
+        plan_id: str = "",
+        method: dict[str, Any] | None = None,
+        metrics: dict[str, Any] | None = None,
+        request: dict[str, Any] | None = None,
+        robot: dict[str, Any] | None = None,
+    ) -> None:
+        self.id = plan_id
+        self.method: dict[str, Any] = method or {}
+        self.metrics: dict[str, Any] = metrics or {}
+        self.request: dict[str, Any] = request or {}
+        self.robot = robot
+        self.t = _arr(record["t"])
+        self.q = _arr(record["q"], 2)
+        self.qd = _arr(record["qd"], 2)
+        #: ``(n,)`` which joints are prismatic (positions in m, not drawn in degrees)
+        self.prismatic = np.asarray(record["prismatic"], dtype=float).reshape(-1).astype(bool)
+        self.q_deg = np.where(self.prismatic, np.nan, np.degrees(self.q))
+        self.qd_deg_s = np.where(self.prismatic, np.nan, np.degrees(self.qd))
+        self.base_position = _arr(record["base_position"], 2)
+        self.base_quat = _arr(record["base_attitude"], 2)
+        self.ee_position = _arr(record["ee_position"], 2)
+        self.ee_position_desired = _arr(record["ee_position_desired"], 2)
+        self.ee_quat = _arr(record["ee_attitude"], 2)
+        self.ee_quat_desired = _arr(record["ee_attitude_desired"], 2)
+        self.singular_values = _arr(record["singular_values"], 2)
+        self.det = _arr(record["det_J_g"])
+        self.damping = _arr(record["damping"], 2)
+        self.position_error = _arr(record["position_error"])
+        self.attitude_error = _arr(record["attitude_error"])
 
     @property
     def label(self) -> str:
@@ -127,13 +133,13 @@ class PlanData:
 
 def singular_threshold(method: dict[str, Any]) -> tuple[float, str]:
     """The singular-region threshold on the smallest singular value for a plan's ``method``
-    (``{"name", "params"}``), and its symbol."""
+    (``{"name", "params"}``): the parameter the method's registry entry names (its
+    ``threshold``), and its symbol."""
     params = method.get("params") or {}
-    name = method.get("name")
-    if name in ("adaptive", "wdls") and params.get("epsilon") is not None:
-        return float(params["epsilon"]), "ε"
-    if name == "svf" and params.get("sigma0") is not None:
-        return float(params["sigma0"]), "σ0"
+    spec = METHODS.get(str(method.get("name")))
+    name = spec.threshold if spec is not None else None
+    if name is not None and params.get(name) is not None:
+        return float(params[name]), SYMBOLS.get(name, name)
     return DEFAULT_SINGULAR_THRESHOLD, "ε (default)"
 
 
@@ -522,9 +528,9 @@ def fig_compare_tracking(plans: Sequence[PlanData]) -> Figure:
 
 def fig_convergence(job: dict[str, Any]) -> Figure:
     """Best-so-far and mean objective B per generation (paper Fig. 7), one pair of curves per GA
-    phase (the tuned method and the DLS baseline). Uses the per-generation history the worker
-    writes into the job's progress while it runs; a finished job without it falls back to its
-    result's history."""
+    phase (the tuned method and the DLS baseline), from the job's generation rows (``history``:
+    ``phase``, ``role``, ``generation``, ``best``, ``mean`` each), written as each generation ends;
+    a finished job without them falls back to its result's history."""
     history = _job_history(job)
     fig = Figure(figsize=(8.0, 4.4), dpi=DPI, layout="constrained")
     ax = fig.subplots()
@@ -562,12 +568,12 @@ def _positive(ax: Axes) -> bool:
 
 def _job_history(job: dict[str, Any]) -> dict[str, list[dict[str, Any]]]:
     out: dict[str, list[dict[str, Any]]] = {}
-    rows = (job.get("progress") or {}).get("history") or []
+    rows = job.get("history") or []
     for r in rows:
         name = str(r.get("phase") or job.get("method") or "GA")
         out.setdefault("DLS baseline" if r.get("role") == "dls_baseline" else name, []).append(r)
     if not out and job.get("result"):
-        method = str((job.get("result") or {}).get("method") or job.get("method") or "GA")
+        method = str(job.get("method") or "GA")
         out[method] = list((job.get("result") or {}).get("history") or [])
     return out
 
@@ -583,13 +589,11 @@ def render(fig: Figure, fmt: str) -> bytes:
     return buf.getvalue()
 
 
-def render_plan_figure(plan: dict[str, Any] | PlanData, name: str, fmt: str = "svg") -> bytes:
-    data = plan if isinstance(plan, PlanData) else PlanData(plan)
+def render_plan_figure(data: PlanData, name: str, fmt: str = "svg") -> bytes:
     return render(PLAN_FIGURES[name](data), fmt)
 
 
-def render_compare_figure(plans: Sequence[dict[str, Any] | PlanData], fmt: str = "svg") -> bytes:
-    data = [p if isinstance(p, PlanData) else PlanData(p) for p in plans]
+def render_compare_figure(data: Sequence[PlanData], fmt: str = "svg") -> bytes:
     return render(fig_compare_tracking(data), fmt)
 
 
@@ -718,7 +722,7 @@ _DATA_LOCK = threading.Lock()
 DATA_CACHE_PLANS = 4  # decoded plans kept for rendering their other figures (a 20,000-step plan is ~8 MB)
 
 
-def plan_data(plan_id: str, load: Callable[[], dict[str, Any]]) -> PlanData:
+def plan_data(plan_id: str, load: Callable[[], PlanData]) -> PlanData:
     """The decoded arrays of a plan, from a small LRU (decoding a long plan's JSON costs more
     than drawing one figure, and a plan page asks for all of them at once)."""
     with _DATA_LOCK:
@@ -726,7 +730,7 @@ def plan_data(plan_id: str, load: Callable[[], dict[str, Any]]) -> PlanData:
         if data is not None:
             _DATA.move_to_end(plan_id)
             return data
-    data = PlanData(load())
+    data = load()
     with _DATA_LOCK:
         _DATA[plan_id] = data
         while len(_DATA) > DATA_CACHE_PLANS:

@@ -92,6 +92,26 @@ class TuningJob(Base):
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, onupdate=utcnow)
 
 
+class JobGeneration(Base):
+    """One finished generation of a tuning job's GA, appended as it ends (the job's history:
+    progress, event stream, convergence figure). ``seq`` numbers the records of one ``attempt``
+    from 1 (an event's id is ``<attempt>.<seq>``); ``phase`` is the method the GA tunes and
+    ``role`` whether it is the job's own method or the DLS baseline."""
+
+    __tablename__ = "tuning_job_generations"
+
+    job_id: Mapped[str] = mapped_column(String(64), ForeignKey("tuning_jobs.id", ondelete="CASCADE"), primary_key=True)
+    attempt: Mapped[int] = mapped_column(Integer, primary_key=True)
+    seq: Mapped[int] = mapped_column(Integer, primary_key=True)
+    phase: Mapped[str] = mapped_column(String(16))
+    role: Mapped[str] = mapped_column(String(16))
+    generation: Mapped[int] = mapped_column(Integer)
+    best: Mapped[float | None] = mapped_column(Float, nullable=True)
+    mean: Mapped[float | None] = mapped_column(Float, nullable=True)
+    feasible: Mapped[int] = mapped_column(Integer)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
 class Landscape(Base):
     """An objective landscape: ``grids`` holds its arrays (``service.infra.storage``), ``summary`` the rest."""
 

@@ -15,8 +15,7 @@ from typing import Any
 from fastapi import FastAPI
 
 from service.errors import PROBLEM_JSON
-from service.schemas.common import ROBOT_CHOICE
-from service.schemas.robots import RobotUrdfIn
+from service.schemas.robots import ROBOT_CHOICE, RobotUrdfIn
 
 BEARER = "bearerAuth"
 RETRY_AFTER = {"Retry-After": {"schema": {"type": "integer", "minimum": 1}, "description": "seconds to wait before retrying"}}

@@ -6,8 +6,9 @@
   subquery skips rows other workers have locked, so concurrent workers take different jobs). A
   job is claimable when it is queued, or running with an expired lease (its worker died) and
   attempts left.
-- ``heartbeat``: renews the lease and writes progress, only while this worker still owns the
-  job; it returns whether cancellation was requested or the lease was lost.
+- ``heartbeat``: renews the lease and writes progress (its summary, and a finished generation
+  appended to ``tuning_job_generations``, in one transaction), only while this worker still owns
+  the job; it returns whether cancellation was requested or the lease was lost.
 - ``finish``/``fail``/``cancelled``/``requeue``: final transitions, again only by the owner.
 """
 
@@ -20,7 +21,7 @@ from typing import Any
 from sqlalchemy import and_, or_, select, update
 
 from service.infra.db import Database, retry_locked
-from service.models import TuningJob, utcnow
+from service.models import JobGeneration, TuningJob, utcnow
 
 TERMINAL = ("succeeded", "failed", "cancelled")
 
@@ -118,9 +119,17 @@ def _owned(claim: Claim) -> Any:
 
 
 @retry_locked
-def heartbeat(db: Database, claim: Claim, lease_seconds: float, progress: dict[str, Any] | None = None) -> str:
-    """Renew the lease (and store ``progress``). Returns ``"ok"``, ``"cancel"`` (cancellation
-    requested) or ``"lost"`` (another worker owns the job now, or it is gone)."""
+def heartbeat(
+    db: Database,
+    claim: Claim,
+    lease_seconds: float,
+    progress: dict[str, Any] | None = None,
+    generation: dict[str, Any] | None = None,
+) -> str:
+    """Renew the lease (and store ``progress``, and append ``generation``: the fields of a
+    :class:`JobGeneration` but the job and attempt), in one transaction. Returns ``"ok"``,
+    ``"cancel"`` (cancellation requested) or ``"lost"`` (another worker owns the job now, or it is
+    gone)."""
     values: dict[str, Any] = {"lease_expires_at": utcnow() + timedelta(seconds=lease_seconds)}
     if progress is not None:
         values["progress"] = progress
@@ -132,6 +141,8 @@ def heartbeat(db: Database, claim: Claim, lease_seconds: float, progress: dict[s
             .returning(TuningJob.cancel_requested)
             .execution_options(synchronize_session=False)
         ).first()
+        if row is not None and generation is not None:
+            s.add(JobGeneration(job_id=claim.job_id, attempt=claim.attempts, **generation))
     if row is None:
         return "lost"
     return "cancel" if row[0] else "ok"

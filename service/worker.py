@@ -21,9 +21,9 @@ from engine.tuning import MapFn, dask_map
 from service import queue
 from service.infra.db import Database, is_database_fault, unavailable_reason
 from service.infra.logs import JOB_ID
-from service.infra.migrate import seed_presets
 from service.infra.settings import Settings
-from service.jobs import run_job
+from service.usecases.robots import seed_presets
+from service.usecases.tuning_run import run_job
 
 log = logging.getLogger("spacearm.worker")
 

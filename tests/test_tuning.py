@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from engine import tuning
-from engine.tuning import Comparison, TuneProgress, check_bounds, compare, decode, tune
+from engine.tuning import Comparison, Termination, TuneProgress, check_bounds, compare, decode, tune
+from engine.tuning import problem as tuning_problem
 
 
 @pytest.fixture
@@ -13,14 +14,14 @@ def bowl(monkeypatch):
     """Replace the planner by a known two-parameter function: a bowl with its minimum at
     (0.03, 0.2), infeasible (inf) where lambda_max > 0.15."""
 
-    def fake_evaluate_chunk(chunk):
+    def fake_evaluate_chunk(chunk, stop=None):
         lam = chunk.params["lambda_max"]
         eps = chunk.params["epsilon"]
         b = 0.001 + (lam - 0.03) ** 2 + (eps - 0.2) ** 2
         b = np.where(lam > 0.15, np.inf, b)
-        return np.stack([b] * len(chunk.tasks), axis=1)
+        return np.stack([b] * chunk.problem.n_tasks, axis=1)
 
-    monkeypatch.setattr(tuning, "evaluate_chunk", fake_evaluate_chunk)
+    monkeypatch.setattr(tuning_problem, "evaluate_chunk", fake_evaluate_chunk)
 
 
 def test_ga_finds_the_minimum_of_a_known_function(robot, task, bowl):
@@ -45,21 +46,23 @@ def test_same_seed_same_result(robot, task, bowl):
 
 
 def test_infeasible_everywhere_is_a_failed_result(robot, task, monkeypatch):
-    monkeypatch.setattr(tuning, "evaluate_chunk", lambda chunk: np.full((len(chunk.params["lambda"]), 1), np.inf))
+    monkeypatch.setattr(tuning_problem, "evaluate_chunk", lambda chunk, stop=None: np.full((len(chunk.params["lambda"]), 1), np.inf))
     result = tune(robot, task, "dls", population=6, generations=2, seed=0)
     assert not result.success and "no feasible" in result.message
     assert math.isinf(result.best_objective_b)
     assert all(h.feasible == 0 for h in result.history)
 
 
-def test_callback_reports_and_can_stop(robot, task, bowl):
+def test_callback_reports_and_the_termination_stops(robot, task, bowl):
     seen: list[TuneProgress] = []
+    termination = Termination(20)
 
     def callback(progress):
         seen.append(progress)
-        return progress.generation == 3
+        if progress.generation == 3:
+            termination.cancel()
 
-    result = tune(robot, task, "adaptive", population=10, generations=20, seed=1, callback=callback)
+    result = tune(robot, task, "adaptive", population=10, generations=20, seed=1, callback=callback, termination=termination)
     assert [p.generation for p in seen] == [0, 1, 2, 3]
     assert result.stopped and "stopped after generation 3" in result.message
     assert seen[-1].evaluations <= 10 + 3 * 9 and seen[-1].generations == 20

@@ -3,6 +3,7 @@ infinities as null, aware datetimes in UTC with a ``Z``."""
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Iterator
 from typing import Any
@@ -11,6 +12,25 @@ import numpy as np
 import orjson
 
 OPTIONS = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_UTC_Z
+
+
+def clean(value: Any) -> Any:
+    """A JSON-safe copy of ``value`` for a JSON column: numpy to lists and Python numbers, NaN and
+    infinities to None."""
+    if isinstance(value, np.ndarray):
+        return clean(value.tolist())
+    if isinstance(value, dict):
+        return {str(k): clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [clean(v) for v in value]
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    return value
 
 
 def dumps(value: Any) -> bytes:

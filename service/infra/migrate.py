@@ -1,5 +1,5 @@
 """Alembic helpers: upgrade (with a check of half-done databases), downgrade, the current and
-head revisions, and the presets.
+head revisions (the preset robots are seeded by :func:`service.usecases.robots.seed_presets`).
 
 Migrations are atomic (see ``migrations/env.py``). A database left half-migrated by an earlier,
 non-transactional version of ``spacearm migrate`` (tables but no ``alembic_version``) is
@@ -9,44 +9,25 @@ otherwise :func:`upgrade` refuses with :class:`MigrationError`, saying what to d
 
 from __future__ import annotations
 
-import functools
 import logging
-from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import Engine, func, inspect, select, table, text
-from sqlalchemy.exc import IntegrityError
 
 import migrations
-from service.infra.db import Database, ensure_sqlite_dir, make_engine
-from service.models import Base, Robot
+from service.infra.db import ensure_sqlite_dir, make_engine
+from service.models import Base
 
-if TYPE_CHECKING:
-    from engine import RobotModel
-
-PRESET_ROBOT_ID = "table1"
 log = logging.getLogger("spacearm.migrate")
 
 
 class MigrationError(Exception):
     """The database is in a state ``spacearm migrate`` will not touch; the message says why and
     what to do."""
-
-
-def preset_robots() -> dict[str, Callable[[], RobotModel]]:
-    """The robots every database starts with: the paper's Table-1 robot and the URDF examples (a
-    7-joint arm on a spacecraft, a 3-joint arm), each built only when missing (reading a URDF
-    imports its parser, about a second). The engine (numba) is imported only once the schema
-    exists, so a bare ``spacearm migrate`` stays light."""
-    from engine import table1_robot, urdf_robot
-    from engine.model import URDF_PRESETS
-
-    return {PRESET_ROBOT_ID: table1_robot, **{name: functools.partial(urdf_robot, name) for name in URDF_PRESETS}}
 
 
 def alembic_config(url: str) -> Config:
@@ -107,15 +88,3 @@ def head_revision(url: str) -> str | None:
 def current_revision(engine: Engine) -> str | None:
     with engine.connect() as conn:
         return MigrationContext.configure(conn).get_current_revision()
-
-
-def seed_presets(db: Database) -> None:
-    """Insert the preset robots that are missing (idempotent)."""
-    for robot_id, build in preset_robots().items():
-        try:
-            with db.session() as session:
-                if session.scalar(select(Robot.id).where(Robot.id == robot_id)) is None:
-                    model = build()
-                    session.add(Robot(id=robot_id, name=model.name, parameters=model.to_dict(), preset=True))
-        except IntegrityError:  # another process seeded it at the same time
-            pass

@@ -18,8 +18,8 @@ from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
+from service.html import env
 from service.infra.security import page_csp
-from service.routers.web import env
 
 router = APIRouter(include_in_schema=False)
 

@@ -22,50 +22,21 @@ import re
 import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
-from datetime import datetime
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Header, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.sse import EventSourceResponse, ServerSentEvent
-from sqlalchemy import select
 
 from service.deps import JobId, SessionRoute
 from service.errors import ApiValidationError, NotFoundError, responses
-from service.infra.db import Database
-from service.models import TuningJob
-from service.queue import TERMINAL
-from service.routers.tuning import job_phases
+from service.usecases.job_events import TERMINAL, Snapshot, read_job, status_summary
 
 router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"], route_class=SessionRoute)
 
 POLL_S = 0.5  # how often an open stream reads the job
 RETRY_MS = 2000  # how long a browser waits before reconnecting
 EVENT_ID = re.compile(r"^([0-9]{1,9})\.([0-9]{1,9})$")
-
-
-@dataclass
-class Snapshot:
-    status: str
-    attempts: int
-    cancel_requested: bool
-    error: str | None
-    updated_at: datetime | None
-    request: dict[str, Any]
-    progress: dict[str, Any] | None  # None: unchanged since the last read
-
-
-def read_job(db: Database, job_id: str, seen: datetime | None) -> Snapshot | None:
-    """The job's state; its progress (the large part) only if it changed since ``seen``."""
-    columns = (TuningJob.status, TuningJob.attempts, TuningJob.cancel_requested, TuningJob.error, TuningJob.updated_at)
-    with db.session() as session:
-        row = session.execute(select(*columns, TuningJob.request).where(TuningJob.id == job_id)).first()
-        if row is None:
-            return None
-        progress = None
-        if seen is None or row.updated_at != seen:
-            progress = session.scalar(select(TuningJob.progress).where(TuningJob.id == job_id)) or {}
-    return Snapshot(row.status, row.attempts, row.cancel_requested, row.error, row.updated_at, row.request, progress)
 
 
 @dataclass
@@ -86,7 +57,7 @@ async def stream_start(
     ] = None,
 ) -> StreamStart:
     """Load the job (404) and check the resume point (422) before the stream starts."""
-    snapshot = await run_in_threadpool(read_job, request.app.state.db, job_id, None)
+    snapshot = await run_in_threadpool(read_job, request.app.state.db, job_id, None, 0)
     if snapshot is None:
         raise NotFoundError("tuning job", job_id)
     given, loc = (last_event_id_header, ["header", "Last-Event-ID"])
@@ -95,9 +66,7 @@ async def stream_start(
     if given is None:
         return StreamStart(job_id, snapshot, None)
     match = EVENT_ID.match(given.strip())
-    progress = snapshot.progress or {}
-    attempt = int(progress.get("attempt", snapshot.attempts))
-    records = len(progress.get("history") or [])
+    attempt, records = snapshot.attempt, snapshot.records
     if match is None or (int(match[1]), int(match[2])) > (attempt, records):
         sent = f"its ids run from {attempt}.1 to {attempt}.{records}" if records else "it has sent no generation yet"
         msg = f"unknown event id {given!r} (ids are <attempt>.<record>): {sent}"
@@ -105,28 +74,13 @@ async def stream_start(
     return StreamStart(job_id, snapshot, (int(match[1]), int(match[2])))
 
 
-def status_event(job_id: str, snap: Snapshot, progress: dict[str, Any]) -> ServerSentEvent:
-    phases = job_phases(snap.request, progress.get("history") or [])
-    data = {
-        "id": job_id,
-        "status": snap.status,
-        "attempts": snap.attempts,
-        "cancel_requested": snap.cancel_requested,
-        "error": snap.error,
-        "phase": progress.get("phase"),
-        "generation": sum(p.completed for p in phases),
-        "generations": sum(p.generations for p in phases),
-        "evaluations": progress.get("evaluations", 0),
-        "best_objective_b": progress.get("best_objective_b"),
-        "best_params": progress.get("best_params"),
-    }
-    return ServerSentEvent(event="status", data=data, retry=RETRY_MS)
+def status_event(job_id: str, snap: Snapshot) -> ServerSentEvent:
+    return ServerSentEvent(event="status", data={"id": job_id, **status_summary(snap)}, retry=RETRY_MS)
 
 
-def generation_event(snap: Snapshot, attempt: int, number: int, row: dict[str, Any]) -> ServerSentEvent:
-    generations = int((snap.request.get("ga") or {}).get("generations", 0))
-    data = {k: row.get(k) for k in ("phase", "role", "generation", "best", "mean", "feasible")}
-    return ServerSentEvent(event="generation", id=f"{attempt}.{number}", data={**data, "generations": generations})
+def generation_event(snap: Snapshot, attempt: int, row: dict[str, Any]) -> ServerSentEvent:
+    data = {k: row[k] for k in ("phase", "role", "generation", "best", "mean", "feasible")}
+    return ServerSentEvent(event="generation", id=f"{attempt}.{row['seq']}", data={**data, "generations": snap.generations})
 
 
 @router.get(
@@ -149,28 +103,27 @@ def generation_event(snap: Snapshot, attempt: int, number: int, row: dict[str, A
 async def get_tuning_job_events(
     start: Annotated[StreamStart, Depends(stream_start)], request: Request
 ) -> AsyncIterator[ServerSentEvent]:
-    db: Database = request.app.state.db
+    db = request.app.state.db
     heartbeat_s: float = request.app.state.settings.sse_heartbeat_s
     snap = start.snapshot
-    progress = snap.progress or {}
-    attempt = int(progress.get("attempt", snap.attempts))
+    attempt = snap.attempt
     sent = start.after[1] if start.after is not None and start.after[0] == attempt else 0
+    if sent:  # the rows up to the resume point were read with the first snapshot: skip them
+        snap.rows = [row for row in snap.rows if row["seq"] > sent]
     shown: tuple[Any, ...] | None = None
     quiet_since = time.monotonic()
     while True:
-        if snap.progress is not None:
-            progress = snap.progress
-        if int(progress.get("attempt", snap.attempts)) != attempt:  # a retry starts its history anew
-            attempt, sent = int(progress.get("attempt", snap.attempts)), 0
-        history = progress.get("history") or []
-        for number in range(sent + 1, len(history) + 1):
-            yield generation_event(snap, attempt, number, history[number - 1])
-            quiet_since = time.monotonic()
-        sent = max(sent, len(history))
+        if snap.attempt != attempt:  # a retry starts its history anew
+            attempt, sent = snap.attempt, 0
+        for row in snap.rows:
+            if row["seq"] > sent:
+                yield generation_event(snap, attempt, row)
+                sent = row["seq"]
+                quiet_since = time.monotonic()
         state = (snap.status, snap.attempts, snap.cancel_requested, snap.error)
         if state != shown:
             shown = state
-            yield status_event(start.job_id, snap, progress)
+            yield status_event(start.job_id, snap)
             quiet_since = time.monotonic()
         if snap.status in TERMINAL:
             yield ServerSentEvent(event="end", data={"id": start.job_id, "status": snap.status})
@@ -179,7 +132,7 @@ async def get_tuning_job_events(
             yield ServerSentEvent(comment="heartbeat")
             quiet_since = time.monotonic()
         await asyncio.sleep(POLL_S)
-        latest = await run_in_threadpool(read_job, db, start.job_id, snap.updated_at)
+        latest = await run_in_threadpool(read_job, db, start.job_id, snap, sent)
         if latest is None:  # deleted while streaming
             yield ServerSentEvent(event="end", data={"id": start.job_id, "status": "deleted"})
             return

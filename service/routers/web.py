@@ -20,7 +20,6 @@ import hmac
 import json
 import math
 import secrets
-from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
@@ -28,54 +27,17 @@ import httpx
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
-from jinja2 import Environment, FileSystemLoader, select_autoescape
-from sqlalchemy import select
 
-from engine.inverses import METHODS
 from service import figures
 from service.deps import JobId, PlanId, SessionRoute, get_db
+from service.html import env
 from service.infra.logs import REQUEST_ID
 from service.infra.sessions import CSRF_COOKIE, SESSION_COOKIE, close_session, open_session
-from service.models import Plan, Robot, TuningJob
-from service.routers.tasks import PRESETS
+from service.usecases import pages, presets
 
 router = APIRouter(include_in_schema=False, route_class=SessionRoute)
 
-TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
-env = Environment(loader=FileSystemLoader(TEMPLATES), autoescape=select_autoescape(["html"]))
-
 FORWARDED_HEADERS = ("x-request-id",)
-
-METRIC_ROWS = [
-    ("objective_b", "objective B", "", 1.0),
-    ("position_error_max_m", "max position error", "mm", 1e3),
-    ("position_error_rms_m", "RMS position error", "mm", 1e3),
-    ("position_error_final_m", "final position error", "mm", 1e3),
-    ("attitude_error_max_rad", "max attitude error", "deg", 180.0 / math.pi),
-    ("attitude_error_rms_rad", "RMS attitude error", "deg", 180.0 / math.pi),
-    ("attitude_error_final_rad", "final attitude error", "deg", 180.0 / math.pi),
-    ("max_joint_speed_deg_s", "max joint speed", "deg/s", 1.0),
-    ("joint_speed_limit_deg_s", "joint speed limit", "deg/s", 1.0),
-    ("joint_speed_limit_respected", "speed limit respected", "", None),
-    ("min_singular_value", "min singular value σ_min", "", 1.0),
-    ("time_of_min_singular_value_s", "time of min σ_min", "s", 1.0),
-    ("min_abs_det_gjm", "min |det J_g|", "", 1.0),
-    ("time_of_min_abs_det_gjm_s", "time of min |det J_g|", "s", 1.0),
-]
-
-
-def fmt(value: Any, scale: float | None = 1.0) -> str:
-    if value is None:
-        return "—"
-    if isinstance(value, bool) or scale is None:
-        return "yes" if value else "no"
-    if isinstance(value, int | float):
-        v = float(value) * scale
-        return f"{v:.4g}" if math.isfinite(v) else "—"
-    return str(value)
-
-
-env.filters["fmt"] = fmt
 
 
 def page(name: str, status_code: int = 200, *, request: Request | None = None, **context: Any) -> HTMLResponse:
@@ -119,44 +81,8 @@ def rejected(request: Request, error: FormRejectedError) -> HTMLResponse:
     return page("error.html", 403, request=request, title="Form refused", detail=str(error))
 
 
-def method_forms() -> list[dict[str, Any]]:
-    return [
-        {
-            "name": name,
-            "description": spec.description,
-            "params": [{"name": p.name, "default": p.default, "unit": p.unit} for p in spec.params],
-        }
-        for name, spec in METHODS.items()
-    ]
-
-
 def index_context(request: Request) -> dict[str, Any]:
-    with get_db(request).session() as s:
-        robots = s.scalars(select(Robot).order_by(Robot.created_at, Robot.id).limit(50)).all()
-        plans = s.execute(
-            select(Plan.id, Plan.robot_id, Plan.method, Plan.success, Plan.metrics, Plan.created_at)
-            .order_by(Plan.created_at.desc(), Plan.id)
-            .limit(20)
-        ).all()
-        jobs = s.scalars(select(TuningJob).order_by(TuningJob.created_at.desc(), TuningJob.id).limit(20)).all()
-        return {
-            "robots": [
-                {"id": r.id, "name": r.name, "preset": r.preset, "n_joints": len(r.parameters.get("links", []))} for r in robots
-            ],
-            "plans": [r._asdict() for r in plans],
-            "jobs": [
-                {
-                    "id": j.id,
-                    "status": j.status,
-                    "method": j.request.get("method"),
-                    "progress": j.progress or {},
-                    "created_at": j.created_at,
-                }
-                for j in jobs
-            ],
-            "methods": method_forms(),
-            "presets": list(PRESETS.values()),
-        }
+    return {**pages.index(get_db(request)), "methods": pages.method_forms(), "presets": list(presets.PRESETS.values())}
 
 
 @router.get("/", response_class=HTMLResponse)
@@ -166,28 +92,14 @@ def index(request: Request) -> HTMLResponse:
 
 @router.get("/plans/{plan_id:id}", response_class=HTMLResponse)
 def plan_page(plan_id: PlanId, request: Request) -> HTMLResponse:
-    with get_db(request).session() as s:
-        row = s.execute(
-            select(
-                Plan.id,
-                Plan.robot_id,
-                Plan.method,
-                Plan.success,
-                Plan.message,
-                Plan.metrics,
-                Plan.replay,
-                Plan.elapsed_s,
-                Plan.created_at,
-            ).where(Plan.id == plan_id)
-        ).first()
-    if row is None:
+    plan = pages.plan(get_db(request), plan_id)
+    if plan is None:
         return page("error.html", 404, request=request, title="Plan not found", detail=f"plan {plan_id!r} does not exist")
-    plan = row._asdict()
     return page(
         "plan.html",
         request=request,
         plan=plan,
-        metric_rows=METRIC_ROWS,
+        metric_rows=pages.METRIC_ROWS,
         figure_names=list(figures.PLAN_FIGURES),
         figure_titles=figures.FIGURE_TITLES,
         threshold=figures.singular_threshold(plan["method"]),
@@ -196,22 +108,11 @@ def plan_page(plan_id: PlanId, request: Request) -> HTMLResponse:
 
 @router.get("/jobs/{job_id:id}", response_class=HTMLResponse)
 def job_page(job_id: JobId, request: Request) -> HTMLResponse:
-    with get_db(request).session() as s:
-        job = s.get(TuningJob, job_id)
-        if job is None:
-            return page(
-                "error.html", 404, request=request, title="Tuning job not found", detail=f"tuning job {job_id!r} does not exist"
-            )
-        data: dict[str, Any] = {
-            "id": job.id,
-            "status": job.status,
-            "method": job.request.get("method"),
-            "request": job.request,
-            "progress": job.progress or {},
-            "result": job.result,
-            "error": job.error,
-            "created_at": job.created_at,
-        }
+    data = pages.job(get_db(request), job_id)
+    if data is None:
+        return page(
+            "error.html", 404, request=request, title="Tuning job not found", detail=f"tuning job {job_id!r} does not exist"
+        )
     return page("job.html", request=request, job=data, request_json=json.dumps(data["request"].get("ga", {})))
 
 
@@ -243,7 +144,7 @@ def _float(form: dict[str, str], key: str, default: float | None = None) -> floa
 
 
 def _plan_body(form: dict[str, str]) -> dict[str, Any]:
-    preset = PRESETS.get(form.get("preset", "paper-line"), PRESETS["paper-line"])
+    preset = presets.PRESETS.get(form.get("preset", "paper-line"), presets.PRESETS["paper-line"])
     task = preset.task.model_dump()
     for key in ("duration_s", "dt_s", "joint_speed_limit_deg_s"):
         value = _float(form, key)
@@ -251,8 +152,7 @@ def _plan_body(form: dict[str, str]) -> dict[str, Any]:
             task[key] = value
     method = form.get("method", "adaptive")
     params: dict[str, float] = {}
-    spec = METHODS.get(method)
-    for p in spec.params if spec else ():
+    for p in pages.method_params(method):
         value = _float(form, f"{method}.{p.name}")
         if value is not None:
             params[p.name] = value
@@ -355,7 +255,7 @@ async def submit_job(request: Request) -> Response:
         check_form(request, form)
     except FormRejectedError as error:
         return rejected(request, error)
-    preset = PRESETS.get(form.get("preset", "paper-line"), PRESETS["paper-line"])
+    preset = presets.PRESETS.get(form.get("preset", "paper-line"), presets.PRESETS["paper-line"])
     population = _float(form, "population", 8.0)
     generations = _float(form, "generations", 5.0)
     body = {

@@ -10,26 +10,26 @@ keeps its plain ``q0_deg`` list."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Annotated, Any, Literal, get_args
+import functools
+import math
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Annotated, Any, Literal, get_args
 
+import numpy as np
 from pydantic import (
     AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
-    GetJsonSchemaHandler,
     field_validator,
-    model_validator,
 )
-from pydantic.json_schema import JsonSchemaValue
-from pydantic_core import CoreSchema
 from typing_extensions import TypeAliasType
 
-from engine.inverses import METHODS
-from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, check_weights
-from engine.model import JOINT_TYPES
-from engine.paths import ARC_ATTITUDES, PROFILES
+from engine.errors import ParameterError
+from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, DET_UNITS, SINGULAR_VALUE_UNITS, check_weights
+from engine.model import JOINT_TYPES, RobotModel
+from engine.paths import PROFILES
 from engine.redundancy import SECONDARY_OBJECTIVES
 from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
 from engine.trajectory import PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY, TRACKS
@@ -66,35 +66,37 @@ JointValue = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
 JointValues = Annotated[list[JointValue | None], Field(min_length=1, max_length=12)]
 LimitValue = Annotated[float, Field(ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
 
-#: The unit of the GJM's determinant (and of the product of its singular values): three linear
-#: rows in m (m/s per rad/s) and three angular rows without unit.
-DET_UNITS = "m^3 (three rows in m per rad, three without unit)"
+__all__ = ["DET_UNITS", "SINGULAR_VALUE_UNITS"]  # the engine's unit texts, re-used by the schemas
+
+
+def vocabulary(name: str, values: Iterable[str]) -> Any:
+    """A closed vocabulary as a named schema (an enum class in generated clients), built from the
+    engine's own names (so the two cannot drift). A Literal, not an enum: strict validation of a
+    stored request (a dict) accepts the plain strings."""
+    return TypeAliasType(name, Literal[tuple(values)])
+
 
 # Closed vocabularies, each a named schema (an enum class in generated clients), as the engine
 # defines them (checked here so the two cannot drift). Literals, not enums: strict validation of
 # a stored request (a dict) accepts the plain strings.
-MethodName = TypeAliasType("MethodName", Literal["inverse", "dls", "adaptive", "wdls", "sdls", "svf"])
-TunableMethodName = TypeAliasType("TunableMethodName", Literal["dls", "adaptive", "wdls", "sdls", "svf"])
 AggregationName = TypeAliasType("AggregationName", Literal["max", "rms", "final"])
 AttitudeTermName = TypeAliasType("AttitudeTermName", Literal["angle", "eq18"])
 TaskAggregationName = TypeAliasType("TaskAggregationName", Literal["mean", "max"])
 TimeProfile = TypeAliasType("TimeProfile", Literal["trapezoidal", "quintic"])
-ArcAttitude = TypeAliasType("ArcAttitude", Literal["tangent", "fixed"])
 JobStatus = TypeAliasType("JobStatus", Literal["queued", "running", "succeeded", "failed", "cancelled"])
 JointType = TypeAliasType("JointType", Literal["revolute", "prismatic"])
 JointUnit = TypeAliasType("JointUnit", Literal["deg", "m"])
 TrackedQuantity = TypeAliasType("TrackedQuantity", Literal["pose", "position"])
-SecondaryObjective = TypeAliasType("SecondaryObjective", Literal["min_base_rotation", "joint_centering"])
-assert list(get_args(MethodName.__value__)) == list(METHODS)
-assert list(get_args(TunableMethodName.__value__)) == [name for name, spec in METHODS.items() if spec.params]
+if TYPE_CHECKING:
+    SecondaryObjectiveName = str
+else:  # the schema's name is the API's (a client's enum), the variable's tells it from the engine's objective
+    SecondaryObjectiveName = vocabulary("SecondaryObjective", SECONDARY_OBJECTIVES)
 assert set(get_args(AggregationName.__value__)) == set(AGGREGATIONS)
 assert set(get_args(AttitudeTermName.__value__)) == set(ATTITUDE_TERMS)
 assert set(get_args(TaskAggregationName.__value__)) == set(TASK_AGGREGATIONS)
 assert set(get_args(TimeProfile.__value__)) == set(PROFILES)
-assert set(get_args(ArcAttitude.__value__)) == set(ARC_ATTITUDES)
 assert list(get_args(JointType.__value__)) == list(JOINT_TYPES)
 assert set(get_args(TrackedQuantity.__value__)) == set(TRACKS)
-assert set(get_args(SecondaryObjective.__value__)) == set(SECONDARY_OBJECTIVES)
 AttitudeTerm = Annotated[
     AttitudeTermName,
     Field(
@@ -150,11 +152,50 @@ def _no_nul(value: Any) -> Any:
     return value
 
 
+class EngineName:
+    """``Annotated`` marker of an API field whose engine name is not its name without the unit
+    suffix (see :meth:`Input.locate`)."""
+
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+
+#: Unit suffixes of API field names, longest first: ``duration_s`` is the engine's ``duration``.
+UNIT_SUFFIXES = ("_deg_s2", "_m_s2", "_deg_s", "_m_s", "_quaternion", "_deg", "_rad", "_m", "_s")
+
+
+def engine_name(api_name: str) -> str:
+    """The engine's name of an API field by the naming convention (its unit suffix dropped)."""
+    for suffix in UNIT_SUFFIXES:
+        if api_name.endswith(suffix) and len(api_name) > len(suffix):
+            return api_name[: -len(suffix)]
+    return api_name
+
+
+def field_path(field: str) -> list[str | int]:
+    """``links[2].inertia`` -> ``["links", 2, "inertia"]``."""
+    path: list[str | int] = []
+    for part in field.replace("]", "").split("."):
+        name, _, index = part.partition("[")
+        path.append(name)
+        for i in index.split("[") if index else ():
+            path.append(int(i))
+    return path
+
+
 class Input(BaseModel):
     """A request body, strictly typed: every number must be finite (NaN and infinities, which
     JSON parsers accept as ``NaN``/``Infinity`` literals or overflow to, are rejected with the
     field path), no text for a number and no number for a boolean, no unknown fields, no NUL
-    characters in text."""
+    characters in text.
+
+    Each schema converts itself to the engine's objects (a ``to_engine`` method); the engine names
+    what it refuses with its own field names (``ParameterError(field, reason)``), and
+    :meth:`locate` turns such a name into the API location of the field it came from, by the
+    names the schema declares: an API field's engine name is its name without the unit suffix
+    (``duration_s`` -> ``duration``) unless an :class:`EngineName` marker says otherwise."""
 
     model_config = ConfigDict(allow_inf_nan=False, strict=True, extra="forbid")
 
@@ -162,6 +203,89 @@ class Input(BaseModel):
     @classmethod
     def _text_without_nul(cls, value: Any) -> Any:
         return _no_nul(value)
+
+    @classmethod
+    @functools.cache
+    def engine_fields(cls) -> dict[str, tuple[str, str]]:
+        """Engine name (and API name) -> (API name, attribute) of each field."""
+        out: dict[str, tuple[str, str]] = {}
+        for attr, info in cls.model_fields.items():
+            api = info.alias or attr
+            marker = next((m for m in info.metadata if isinstance(m, EngineName)), None)
+            out.setdefault(marker.name if marker else engine_name(api), (api, attr))
+        for attr, info in cls.model_fields.items():
+            out.setdefault(info.alias or attr, (info.alias or attr, attr))
+        return out
+
+    def locate(self, field: str | Sequence[str | int]) -> list[str | int]:
+        """The API location, relative to this body, of the engine's field ``field`` (a dotted
+        path such as ``waypoints[2].attitude``); as deep as the schema knows it."""
+        parts = field_path(field) if isinstance(field, str) else list(field)
+        if not parts or not isinstance(parts[0], str):
+            return []
+        found = self.engine_fields().get(parts[0])
+        if found is None:  # a name the schema does not declare: an extra field it let through, or nothing
+            return [parts[0]] if self.model_extra and parts[0] in self.model_extra else []
+        api, attr = found
+        return [api, *_descend(getattr(self, attr), parts[1:])]
+
+
+def _descend(value: Any, parts: list[str | int]) -> list[str | int]:
+    out: list[str | int] = []
+    while parts:
+        head = parts[0]
+        if isinstance(head, int):
+            out.append(head)
+            value = value[head] if isinstance(value, list) and 0 <= head < len(value) else None
+            parts = parts[1:]
+        elif isinstance(value, Input):
+            return out + value.locate(parts)
+        else:
+            break
+    return out
+
+
+API_LOCATION = "api_location"
+
+
+@contextmanager
+def located(schema: Input | None, *prefix: str | int) -> Iterator[None]:
+    """Run engine code on what ``schema`` (at ``prefix``, e.g. ``"body", "task"``) converted: a
+    ``ParameterError`` it raises gets the API location of the field it names (see
+    :meth:`Input.locate`), kept by the innermost context, for the one handler that answers it
+    (:func:`service.errors.install`)."""
+    try:
+        yield
+    except ParameterError as exc:
+        if getattr(exc, API_LOCATION, None) is None:
+            where = schema.locate(exc.field) if schema is not None else field_path(exc.field)
+            setattr(exc, API_LOCATION, [*prefix, *where])
+        raise
+
+
+def joint_positions(
+    model: RobotModel, deg: list[float | None] | None, m: list[float | None] | None, fields: tuple[str, str]
+) -> np.ndarray:
+    """``q (n,)`` (rad, m) from the API's two index-aligned lists named ``fields`` (degrees for the
+    revolute joints, metres for the prismatic ones, null at the other joints); the first problem
+    is a ``ParameterError`` naming the API field (``q0_m[2]``)."""
+    n = model.n_joints
+    deg_field, m_field = fields
+    for values, field in ((deg, deg_field), (m, m_field)):
+        if values is not None and len(values) != n:
+            raise ParameterError(field, f"expected {n} values (one per joint), got {len(values)}")
+    q = np.empty(n)
+    for j, link in enumerate(model.links):
+        field, other = (m_field, deg_field) if link.prismatic else (deg_field, m_field)
+        mine, theirs = (m, deg) if link.prismatic else (deg, m)
+        kind = "prismatic (m)" if link.prismatic else "revolute (deg)"
+        value = mine[j] if mine is not None else None
+        if value is None:
+            raise ParameterError(f"{field}[{j}]", f"joint {j + 1} ({model.joint_names[j]}) is {kind}: give it in {field}")
+        if theirs is not None and theirs[j] is not None:
+            raise ParameterError(f"{other}[{j}]", f"joint {j + 1} ({model.joint_names[j]}) is {kind}: null here")
+        q[j] = value if link.prismatic else math.radians(value)
+    return q
 
 
 class Output(BaseModel):
@@ -189,39 +313,3 @@ def _omitted_when_none(value: Any) -> bool:
 
 def _without_default(schema: dict[str, Any]) -> None:
     schema.pop("default", None)
-
-
-#: The units of the singular values of the GJM (which maps joint rates, rad/s, to [v (m/s); w
-#: (rad/s)]: m/rad on the linear rows, 1 on the angular rows) and of the damping parameters.
-SINGULAR_VALUE_UNITS = "in the units of the GJM's singular values"
-
-
-#: Vendor key of the schemas whose ``robot_id`` and ``robot`` are exclusive (see OneRobot).
-ROBOT_CHOICE = "x-exactly-one-of"
-
-
-class OneRobot(Input):
-    """A request naming its robot: ``robot_id`` (a stored robot) or ``robot`` (inline), exactly
-    one of the two (``oneOf`` in the schema)."""
-
-    @classmethod
-    def __get_pydantic_json_schema__(cls, core_schema: CoreSchema, handler: GetJsonSchemaHandler) -> JsonSchemaValue:
-        # Marked here, split in the OpenAPI document (service.openapi.split_robot_choice) into a
-        # oneOf of two objects: not json_schema_extra, which a subclass's model_config replaces.
-        schema = handler.resolve_ref_schema(handler(core_schema))
-        schema[ROBOT_CHOICE] = ["robot_id", "robot"]
-        return schema
-
-    @model_validator(mode="after")
-    def _exactly_one(self) -> Any:
-        if (getattr(self, "robot_id", None) is None) == (getattr(self, "robot", None) is None):
-            raise ValueError("give exactly one of robot_id (a stored robot, e.g. 'table1') and robot (inline parameters)")
-        return self
-
-    def stored(self) -> dict[str, Any]:
-        """The request as stored (JSON; the robot field not given is left out, as in the request)."""
-        data = self.model_dump(mode="json")
-        for name in ("robot_id", "robot"):
-            if data.get(name) is None:
-                data.pop(name, None)
-        return data

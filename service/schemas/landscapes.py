@@ -2,29 +2,42 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import datetime
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Literal
 
+import numpy as np
 from pydantic import (
     ConfigDict,
     Field,
 )
 from typing_extensions import TypeAliasType
 
-from engine.inverses import METHODS
-from service.schemas.common import MAX_MAGNITUDE, PAPER_TASK_EXAMPLE, Input, Magnitude, OneRobot, Output
-from service.schemas.methods import _PARAM_NAMES, MethodParams
-from service.schemas.robots import RobotParams
+from engine import PlanOptions, axis_values
+from engine.inverses import REGISTRY
+from service.schemas.common import (
+    MAX_MAGNITUDE,
+    PAPER_TASK_EXAMPLE,
+    Input,
+    Magnitude,
+    Output,
+    field_path,
+    vocabulary,
+)
+from service.schemas.methods import PARAM_NAMES, MethodParams
+from service.schemas.robots import OneRobot
 from service.schemas.tasks import TaskIn
 from service.schemas.tuning import ObjectiveSettings
 
 # --- objective landscapes
 
 #: Methods with (at least) two parameters to span a landscape.
-LandscapeMethod = TypeAliasType("LandscapeMethod", Literal["adaptive", "wdls", "svf"])
-assert list(get_args(LandscapeMethod.__value__)) == [name for name, spec in METHODS.items() if len(spec.params) >= 2]
-ParamName = TypeAliasType("ParamName", Literal["lambda", "lambda_max", "epsilon", "gamma_max", "sigma0", "nu"])
-assert set(get_args(ParamName.__value__)) == _PARAM_NAMES
+if TYPE_CHECKING:
+    LandscapeMethod = str
+    ParamName = str
+else:
+    LandscapeMethod = vocabulary("LandscapeMethod", [m.name for m in REGISTRY if len(m.params) >= 2])
+    ParamName = vocabulary("ParamName", PARAM_NAMES)
 AxisScale = TypeAliasType("AxisScale", Literal["linear", "log"])
 
 
@@ -36,6 +49,10 @@ class LandscapeAxis(Input):
     max: Magnitude = Field(description="last value, in the parameter's unit (> min)")
     steps: int = Field(default=32, ge=2, le=128, description="values from min to max inclusive")
     scale: AxisScale = Field(default="linear", description="spacing of the values: `linear` or `log` (even in the logarithm)")
+
+    def values(self) -> np.ndarray:
+        """The axis's values (errors name ``min``, ``max``, ``steps``)."""
+        return axis_values(self.min, self.max, self.steps, self.scale)
 
 
 class LandscapeRequest(OneRobot):
@@ -54,11 +71,6 @@ class LandscapeRequest(OneRobot):
         },
     )
 
-    # Optional but not nullable: left out when not used (a null is refused like any wrong type).
-    robot_id: str = Field(  # type: ignore[assignment]
-        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
-    )
-    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
     tasks: list[TaskIn] = Field(min_length=1, max_length=8, description="B is their mean (or max, see objective)")
     method: LandscapeMethod = Field(default="adaptive", description="a method with two parameters or more")
     x: LandscapeAxis = Field(description="the parameter along the grid's rows (first index)")
@@ -74,6 +86,16 @@ class LandscapeRequest(OneRobot):
         description="a succeeded tuning job of the same method: its GA optimum is marked on the heatmap and "
         "its tuned DLS objective drawn as a contour (where the method beats the tuned DLS)",
     )
+
+    def options(self) -> PlanOptions:
+        return PlanOptions(feedback_gain=self.feedback_gain, objective=self.objective.to_engine())
+
+    def locate(self, field: str | Sequence[str | int]) -> list[str | int]:
+        """As :meth:`Input.locate`; the engine's ``x`` or ``y`` (the values of an axis) are the axis's ``min``."""
+        parts = field_path(field) if isinstance(field, str) else list(field)
+        if parts in (["x"], ["y"]):
+            return [parts[0], "min"]
+        return super().locate(parts)
 
 
 class LandscapeAxisOut(Output):

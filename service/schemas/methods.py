@@ -1,129 +1,149 @@
-"""Robust inverses, their parameters and search bounds, and null-space objectives."""
+"""Robust inverses, their parameters and search bounds, and null-space objectives.
+
+Everything about the methods is derived from the engine's registry (:data:`engine.inverses.
+REGISTRY`): the method names, the parameter models (one optional field per parameter name, its
+valid range and defaults the engine's), the search bounds, and the conversions both ways."""
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+import keyword
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Annotated, Any
 
-from pydantic import (
-    ConfigDict,
-    Field,
-)
+from pydantic import ConfigDict, Field, create_model
 
-from engine.inverses import METHODS, ParamSpec
-from engine.redundancy import MAX_CENTERING_GAIN
+from engine.errors import ParameterError
+from engine.inverses import METHODS, REGISTRY, SINGULAR, Inverse, Param
+from engine.redundancy import MAX_CENTERING_GAIN, SecondaryObjective, make_secondary
 from service.schemas.common import (
     SINGULAR_VALUE_UNITS,
     Input,
     Magnitude,
-    MethodName,
     Output,
-    SecondaryObjective,
+    SecondaryObjectiveName,
     _not_required,
     _omitted_when_none,
     _without_default,
+    vocabulary,
 )
 
+if TYPE_CHECKING:
+    MethodName = str
+    TunableMethodName = str
+else:
+    MethodName = vocabulary("MethodName", METHODS)
+    TunableMethodName = vocabulary("TunableMethodName", [m.name for m in REGISTRY if m.tunable])
 
-def _param_specs(name: str) -> list[tuple[str, ParamSpec]]:
-    """The methods that have a parameter ``name``, and its spec in each."""
-    return [(method, p) for method, spec in METHODS.items() for p in spec.params if p.name == name]
+
+def _unit(p: Param) -> str:
+    return SINGULAR_VALUE_UNITS if p.unit == SINGULAR else p.unit or "dimensionless"
 
 
-def _method_param(name: str, meaning: str) -> Any:
+def _uses(name: str) -> list[tuple[str, Param]]:
+    """The methods that have a parameter ``name``, and the parameter in each."""
+    return [(m.name, p) for m in REGISTRY for p in m.params if p.name == name]
+
+
+#: Every parameter name of every method, in the registry's order.
+PARAM_NAMES: tuple[str, ...] = tuple(dict.fromkeys(p.name for m in REGISTRY for p in m.params))
+
+
+def _attr(name: str) -> str:
+    return f"{name}_" if keyword.iskeyword(name) else name
+
+
+def _param_field(name: str) -> Any:
     """A method parameter: optional, never null (left out when not given), its valid range the
     engine's (one range per name, whichever method uses it), its default per method."""
-    specs = _param_specs(name)
-    ranges = {(p.low, p.high, p.low_open) for _, p in specs}
+    uses = _uses(name)
+    ranges = {(p.low, p.high, p.low_open) for _, p in uses}
     assert len(ranges) == 1, f"{name}: one valid range for every method that uses it"
     low, high, low_open = ranges.pop()
-    defaults = ", ".join(f"{p.default:g} ({method})" for method, p in specs)
-    return Field(
-        default=None,
-        alias=name,
-        gt=low if low_open else None,
-        ge=None if low_open else low,
-        le=high,
-        exclude_if=_omitted_when_none,
-        json_schema_extra=_without_default,
-        description=f"{meaning}; default {defaults}",
+    p = uses[0][1]
+    methods = ", ".join(method for method, _ in uses)
+    defaults = ", ".join(f"{q.default:g} ({method})" for method, q in uses)
+    return (
+        float,
+        Field(
+            default=None,
+            alias=name,
+            gt=low if low_open else None,
+            ge=None if low_open else low,
+            le=high,
+            exclude_if=_omitted_when_none,
+            json_schema_extra=_without_default,
+            description=f"{methods}: {p.meaning}, {_unit(p)}; default {defaults}",
+        ),
     )
-
-
-def _param_bounds(name: str, unit: str) -> Any:
-    """The GA's search interval of a method parameter: optional, never null."""
-    defaults = ", ".join(f"[{p.tune_bounds[0]:g}, {p.tune_bounds[1]:g}] ({method})" for method, p in _param_specs(name))
-    return Field(
-        default=None,
-        alias=name,
-        exclude_if=_omitted_when_none,
-        json_schema_extra=_without_default,
-        description=f"[lo, hi] of `{name}`, {unit}, lo < hi within its valid range; default {defaults}",
-    )
-
-
-#: Parameter sets by their API names. A name no method has is refused by the document
-#: (``additionalProperties: false``) but let through validation here: the engine's check then
-#: names the parameters of the method chosen (``valid: lambda_max, epsilon``), which a schema
-#: error ("extra inputs are not permitted") could not.
-PARAMETER_NAMES_CONFIG = ConfigDict(
-    serialize_by_alias=True,
-    validate_by_alias=True,
-    validate_by_name=False,
-    extra="allow",
-    json_schema_extra={"additionalProperties": False},
-)
-
-
-class MethodParams(Input):
-    """Parameters of the robust inverse; give only those of the method named (each method's
-    own: `dls`: `lambda`; `adaptive` and `wdls`: `lambda_max`, `epsilon`; `sdls`: `gamma_max`;
-    `svf`: `sigma0`, `nu`; `inverse`: none). Missing ones take the method's defaults; a parameter
-    of another method is a 422 naming it. Damping and singular-value thresholds are in the units
-    of the GJM's singular values (the GJM maps joint rates in rad/s to [v (m/s); w (rad/s)])."""
-
-    model_config = PARAMETER_NAMES_CONFIG
-
-    lambda_: float = _method_param("lambda", f"dls: the constant damping lambda, {SINGULAR_VALUE_UNITS}")
-    lambda_max: float = _method_param(
-        "lambda_max", f"adaptive, wdls: the largest damping lambda_max (at a zero singular value), {SINGULAR_VALUE_UNITS}"
-    )
-    epsilon: float = _method_param(
-        "epsilon", f"adaptive, wdls: the singular value epsilon below which damping starts, {SINGULAR_VALUE_UNITS}"
-    )
-    gamma_max: float = _method_param("gamma_max", "sdls: the largest joint rate gamma_max, rad/s")
-    sigma0: float = _method_param("sigma0", f"svf: the smallest filtered singular value sigma_0, {SINGULAR_VALUE_UNITS}")
-    nu: float = _method_param("nu", "svf: the shape factor nu of the filter (dimensionless)")
-
-    def given(self) -> dict[str, float]:
-        """The parameters given, by their API names."""
-        return self.model_dump(exclude_none=True)
 
 
 Interval = Annotated[list[Magnitude], Field(min_length=2, max_length=2)]
 
 
-class MethodBounds(Input):
-    """Search intervals of the GA, per parameter of the tuned method (the names of
-    `MethodParams`); missing parameters take the default bounds, a parameter of another method
-    is a 422 naming it."""
+def _bounds_field(name: str) -> Any:
+    """The GA's search interval of a method parameter: optional, never null."""
+    uses = _uses(name)
+    defaults = ", ".join(f"[{p.tune_bounds[0]:g}, {p.tune_bounds[1]:g}] ({method})" for method, p in uses)
+    return (
+        Interval,
+        Field(
+            default=None,
+            alias=name,
+            exclude_if=_omitted_when_none,
+            json_schema_extra=_without_default,
+            description=f"[lo, hi] of `{name}`, {_unit(uses[0][1])}, lo < hi within its valid range; default {defaults}",
+        ),
+    )
 
-    model_config = PARAMETER_NAMES_CONFIG
 
-    lambda_: Interval = _param_bounds("lambda", SINGULAR_VALUE_UNITS)
-    lambda_max: Interval = _param_bounds("lambda_max", SINGULAR_VALUE_UNITS)
-    epsilon: Interval = _param_bounds("epsilon", SINGULAR_VALUE_UNITS)
-    gamma_max: Interval = _param_bounds("gamma_max", "rad/s")
-    sigma0: Interval = _param_bounds("sigma0", SINGULAR_VALUE_UNITS)
-    nu: Interval = _param_bounds("nu", "dimensionless")
+class _ByName(Input):
+    """Values by parameter name. A name no method has is refused by the document
+    (``additionalProperties: false``) but let through validation here: the engine's check then
+    names the parameters of the method chosen (``valid: lambda_max, epsilon``), which a schema
+    error ("extra inputs are not permitted") could not."""
 
-    def given(self) -> dict[str, list[float]]:
-        """The intervals given, by their API names."""
+    model_config = ConfigDict(
+        serialize_by_alias=True,
+        validate_by_alias=True,
+        validate_by_name=False,
+        extra="allow",
+        json_schema_extra={"additionalProperties": False},
+    )
+
+    def given(self) -> dict[str, Any]:
+        """The values given, by their API names."""
         return self.model_dump(exclude_none=True)
 
 
-_PARAM_NAMES = {p.name for spec in METHODS.values() for p in spec.params}
-for _model in (MethodParams, MethodBounds):
-    assert {f.alias or name for name, f in _model.model_fields.items()} == _PARAM_NAMES, _model
+def _own_parameters() -> str:
+    return "; ".join(f"`{m.name}`: {', '.join(f'`{p.name}`' for p in m.params) or 'none'}" for m in REGISTRY)
+
+
+if TYPE_CHECKING:
+    MethodParams = _ByName
+    MethodBounds = _ByName
+else:
+    MethodParams = create_model(
+        "MethodParams",
+        __base__=_ByName,
+        __doc__="Parameters of the robust inverse; give only those of the method named (each method's own: "
+        f"{_own_parameters()}). Missing ones take the method's defaults; a parameter of another method is a 422 "
+        "naming it. Damping and singular-value thresholds are in the units of the GJM's singular values (the GJM "
+        "maps joint rates in rad/s to [v (m/s); w (rad/s)]).",
+        **{_attr(name): _param_field(name) for name in PARAM_NAMES},
+    )
+    MethodBounds = create_model(
+        "MethodBounds",
+        __base__=_ByName,
+        __doc__="Search intervals of the GA, per parameter of the tuned method (the names of `MethodParams`); "
+        "missing parameters take the default bounds, a parameter of another method is a 422 naming it.",
+        **{_attr(name): _bounds_field(name) for name in PARAM_NAMES},
+    )
+
+
+def params_out(values: Mapping[str, float]) -> Any:
+    """A :data:`MethodParams` of parameter values by name (a tuned or used set)."""
+    return MethodParams.model_validate(dict(values))
 
 
 class MethodIn(Input):
@@ -131,19 +151,24 @@ class MethodIn(Input):
 
     name: MethodName = Field(
         default="adaptive",
-        description="`inverse` (plain, paper eq. 3), `dls` (constant damping, eq. 6), `adaptive` (the paper's "
-        "per-singular-value damping, eq. 16), `wdls` (damping from the smallest singular value), `sdls` (selectively "
-        "damped, Buss and Kim 2005), `svf` (singular value filtering, Colome and Torras 2015)",
+        description=", ".join(f"`{m.name}` ({m.description})" for m in REGISTRY),
     )
     params: MethodParams = Field(
         default_factory=MethodParams, description="the method's parameters; missing ones take the method's defaults"
     )
 
+    def to_engine(self) -> Inverse:
+        """The engine's strategy (its parameters checked by the engine: errors name ``params.<name>``)."""
+        try:
+            return METHODS[self.name](**self.params.given())
+        except ParameterError as exc:
+            raise exc.within("params") from None
+
 
 class SecondaryOut(Output):
     """The null-space objective a plan used, its gain filled in."""
 
-    objective: SecondaryObjective = Field(description="the objective (see `SecondaryIn`)")
+    objective: SecondaryObjectiveName = Field(description="the objective (see `SecondaryIn`)")
     gain: float = Field(description="min_base_rotation: in [0, 1], dimensionless; joint_centering: 1/s")
 
 
@@ -159,12 +184,20 @@ class MethodOut(Output):
         default=None, exclude_if=_omitted_when_none, description="the null-space objective (left out when none)"
     )
 
+    @classmethod
+    def from_engine(cls, inverse: Inverse, secondary: SecondaryObjective | None) -> MethodOut:
+        return cls(
+            name=inverse.name,
+            params=params_out(inverse.scalar_params()),
+            secondary=SecondaryOut(objective=secondary.name, gain=secondary.gain) if secondary is not None else None,
+        )
+
 
 class SecondaryIn(Input):
     """A secondary objective in the null space of a redundant arm (more joints than the task
     tracks: 7+ for a pose, 4+ for a position)."""
 
-    objective: SecondaryObjective = Field(
+    objective: SecondaryObjectiveName = Field(
         description="`min_base_rotation`: keep the carrier's attitude still (reaction null space); "
         "`joint_centering`: pull the joints towards the middle of their limits"
     )
@@ -175,3 +208,6 @@ class SecondaryIn(Input):
         description="min_base_rotation: in [0, 1], dimensionless (1 = the full minimiser, default 1); joint_centering: 1/s "
         "(default 0.5)",
     )
+
+    def to_engine(self) -> SecondaryObjective:
+        return make_secondary(self.objective, self.gain)

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
+from typing import TYPE_CHECKING, Any
 
-from pydantic import (
-    ConfigDict,
-    Field,
-)
+import numpy as np
+from pydantic import ConfigDict, Field, create_model
 
+from engine import DurationSearch, Objective, PlanOptions, ReplayResult
+from engine.metrics import LAYOUT, REQUIRED, Metrics, MetricSpec
 from engine.shortest import DEFAULT_RELATIVE_TOLERANCE
 from engine.trajectory import MAX_DURATION_S
 from service.schemas.common import (
@@ -21,14 +23,13 @@ from service.schemas.common import (
     AttitudeTerm,
     AttitudeTermName,
     Input,
-    OneRobot,
     Output,
     TrackedQuantity,
     Weights,
     _not_required,
 )
 from service.schemas.methods import MethodIn, MethodOut, SecondaryIn
-from service.schemas.robots import RobotParams
+from service.schemas.robots import OneRobot
 from service.schemas.tasks import TaskIn
 
 
@@ -50,11 +51,6 @@ class PlanRequest(OneRobot):
         },
     )
 
-    # Optional but not nullable: left out when not used (a null is refused like any wrong type).
-    robot_id: str = Field(  # type: ignore[assignment]
-        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
-    )
-    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
     task: TaskIn = Field(description="the Cartesian task")
     method: MethodIn = Field(default_factory=MethodIn, description="the robust inverse (default: adaptive damping)")
     feedback_gain: float = Field(
@@ -63,69 +59,65 @@ class PlanRequest(OneRobot):
     aggregation: AggregationName = Field(default="max", description=AGGREGATION_DESCRIPTION)
     weights: Weights = [0.5, 0.5]  # noqa: RUF012 (a pydantic field: copied per instance)
     attitude_term: AttitudeTerm = "eq18"
-    replay: bool = Field(default=True, description="re-integrate the plan with solve_ivp and report the gaps")
+    replay: bool = Field(
+        default=True,
+        description="replay the plan independently (its joint motion re-integrated through the momentum equations by a "
+        "compiled DOP853) and report the gaps",
+    )
     secondary: SecondaryIn | None = Field(default=None, description="a null-space objective for a redundant arm")
 
+    def options(self) -> PlanOptions:
+        """The engine's plan options of this request (feedback gain, objective, secondary objective)."""
+        return PlanOptions(
+            feedback_gain=self.feedback_gain,
+            objective=Objective((self.weights[0], self.weights[1]), self.aggregation, self.attitude_term),
+            secondary=self.secondary.to_engine() if self.secondary is not None else None,
+        )
 
-#: Null in a number of a response: not finite (the plan diverged) or not applicable.
-NULL_NOT_FINITE = "null if not finite"
+
+def _metric_field(spec: MetricSpec) -> tuple[Any, Any]:
+    types: dict[str, Any] = {
+        "number": float | None,
+        "bool": bool if spec.api_default is REQUIRED else bool | None,
+        "joint": int | None,
+        "attitude_term": AttitudeTermName,
+        "tracks": TrackedQuantity,
+    }
+    if spec.api_default is REQUIRED:
+        return types[spec.api_type], Field(description=spec.description)
+    return types[spec.api_type], Field(default=spec.api_default, description=spec.description)
 
 
-class PlanMetrics(Output):
-    """What a plan achieved: errors along the path (world frame, against the desired pose of
-    each sample), joint speeds and the closest approach to a singularity."""
+#: The metrics in the API, in the layout's order (:data:`engine.metrics.LAYOUT`).
+API_METRICS: tuple[MetricSpec, ...] = tuple(spec for spec in LAYOUT if spec.api is not None)
 
-    objective_b: float | None = Field(
-        description="objective B = w1 * position term (m) + w2 * attitude term (rad, or m rad with `eq18`), with the "
-        "plan's aggregation; null when the joint speed limit is broken"
+if TYPE_CHECKING:
+    PlanMetrics = Output
+else:
+    PlanMetrics = create_model(
+        "PlanMetrics",
+        __base__=Output,
+        __doc__="What a plan achieved: errors along the path (world frame, against the desired pose of each sample), "
+        "joint speeds and the closest approach to a singularity.",
+        **{spec.api: _metric_field(spec) for spec in API_METRICS},
     )
-    position_error_max_m: float | None = Field(description=f"largest end-effector position error, m; {NULL_NOT_FINITE}")
-    position_error_rms_m: float | None = Field(description=f"root mean square position error, m; {NULL_NOT_FINITE}")
-    position_error_final_m: float | None = Field(description=f"position error at the end, m; {NULL_NOT_FINITE}")
-    attitude_error_max_rad: float | None = Field(description=f"largest attitude error (rotation angle), rad; {NULL_NOT_FINITE}")
-    attitude_error_rms_rad: float | None = Field(description=f"root mean square attitude error, rad; {NULL_NOT_FINITE}")
-    attitude_error_final_rad: float | None = Field(description=f"attitude error at the end, rad; {NULL_NOT_FINITE}")
-    coupled_error_max_m_rad: float | None = Field(
-        default=None, description="eq. 18 as printed, sqrt(sum (dp_i dphi_i)^2), largest, m rad; null if not finite"
-    )
-    coupled_error_rms_m_rad: float | None = Field(default=None, description="eq. 18 as printed, root mean square, m rad")
-    coupled_error_final_m_rad: float | None = Field(default=None, description="eq. 18 as printed, at the end, m rad")
-    attitude_term: AttitudeTermName = Field(
-        default="angle", description="the attitude term B was formed with (plans stored before it was recorded: `angle`)"
-    )
-    max_joint_speed_deg_s: float | None = Field(description=f"largest speed of any revolute joint, deg/s; {NULL_NOT_FINITE}")
-    joint_speed_limit_deg_s: float | None = Field(default=None, description="the task's revolute joint speed limit, deg/s")
-    joint_speed_limit_respected: bool = Field(description="every joint within its speed limit at every sample")
-    min_singular_value: float | None = Field(
-        description=f"smallest singular value of the GJM along the plan, {SINGULAR_VALUE_UNITS}; {NULL_NOT_FINITE}"
-    )
-    time_of_min_singular_value_s: float | None = Field(description="when the smallest singular value occurred, s")
-    min_abs_det_gjm: float | None = Field(
-        description=f"smallest |det| of the tracked rows of the GJM along the plan, {DET_UNITS} for a pose task; null "
-        "unless they are square, or if not finite"
-    )
-    time_of_min_abs_det_gjm_s: float | None = Field(description="when the smallest |det| occurred, s")
-    tracks: TrackedQuantity = Field(default="pose", description="what the plan followed: the whole `pose` or the `position`")
-    max_linear_joint_speed_m_s: float | None = Field(
-        default=None, description=f"largest speed of any prismatic joint, m/s (0 without any); {NULL_NOT_FINITE}"
-    )
-    joint_speed_limit_m_s: float | None = Field(
-        default=None, description="the task's prismatic joint speed limit, m/s; null: none"
-    )
-    position_limits_respected: bool | None = Field(
-        default=None,
-        description="every joint within its position limits at every sample (null: a plan stored before limits were checked)",
-    )
-    position_limit_joint: int | None = Field(
-        default=None, description="the first joint (1-based index) found outside its limits; null if none"
-    )
-    time_position_limit_left_s: float | None = Field(default=None, description="when that joint left its limits, s; null if none")
-    base_attitude_change_max_rad: float | None = Field(
-        default=None, description=f"the carrier's largest rotation from its start, rad; {NULL_NOT_FINITE}"
-    )
-    base_attitude_change_final_rad: float | None = Field(
-        default=None, description=f"the carrier's rotation from its start at the end, rad; {NULL_NOT_FINITE}"
-    )
+
+
+def _api_value(spec: MetricSpec, value: Any) -> Any:
+    if spec.conversion == "deg":
+        value = math.degrees(value)
+    elif spec.conversion == "joint":
+        return int(value) + 1 if value is not None and value >= 0 else None
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def metrics_out(metrics: Metrics[float]) -> dict[str, Any]:
+    """The API's metrics of a plan (JSON-ready: numbers that are not finite are null)."""
+    return {spec.api: _api_value(spec, getattr(metrics, spec.name)) for spec in API_METRICS if spec.api is not None}
 
 
 #: Trajectory arrays are time-major: one row per sample of `t_s`; null where a value is not finite.
@@ -178,6 +170,36 @@ class Trajectory(Output):
     position_error_m: list[float | None] = Field(description="end-effector position error per sample, m")
     attitude_error_rad: list[float | None] = Field(description="end-effector attitude error (rotation angle) per sample, rad")
 
+    @staticmethod
+    def arrays(record: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The trajectory's arrays in the API's units (written by :mod:`service.infra.jsonio`, NaN as
+        null) from a plan's SI record (:func:`service.usecases.plans.record_of`): joint angles in
+        degrees, prismatic joints' columns moved to the ``_m`` arrays, attitudes as quaternions."""
+        prismatic = record["prismatic"].astype(bool)
+        q, qd = record["q"], record["qd"]
+        joints: dict[str, np.ndarray] = {
+            "joint_angles_deg": np.where(prismatic, np.nan, np.degrees(q)),
+            "joint_velocities_deg_s": np.where(prismatic, np.nan, np.degrees(qd)),
+        }
+        if np.any(prismatic):
+            joints["joint_displacements_m"] = np.where(prismatic, q, np.nan)
+            joints["joint_velocities_m_s"] = np.where(prismatic, qd, np.nan)
+        return {
+            "t_s": record["t"],
+            **joints,
+            "base_position_m": record["base_position"],
+            "base_attitude_quaternion": record["base_attitude"],
+            "ee_position_m": record["ee_position"],
+            "ee_position_desired_m": record["ee_position_desired"],
+            "ee_attitude_quaternion": record["ee_attitude"],
+            "ee_attitude_desired_quaternion": record["ee_attitude_desired"],
+            "singular_values": record["singular_values"],
+            "det_gjm": record["det_J_g"],
+            "damping": record["damping"],
+            "position_error_m": record["position_error"],
+            "attitude_error_rad": record["attitude_error"],
+        }
+
 
 class ReplayOut(Output):
     """The independent replay: the plan's joint rates re-integrated through the momentum equations
@@ -197,6 +219,31 @@ class ReplayOut(Output):
         description="largest angular momentum of the system, N m s (ideally 0)"
     )
     com_drift_max_m: float | None = Field(description="largest drift of the system's centre of mass, m (ideally 0)")
+
+    @classmethod
+    def from_engine(cls, r: ReplayResult) -> ReplayOut:
+        values = {
+            "path_position_error_max_m": r.path_position_error_max,
+            "path_position_error_final_m": r.path_position_error_final,
+            "path_attitude_error_max_rad": r.path_attitude_error_max,
+            "path_attitude_error_final_rad": r.path_attitude_error_final,
+            "plan_gap_position_max_m": r.plan_gap_position_max,
+            "plan_gap_attitude_max_rad": r.plan_gap_attitude_max,
+            "base_attitude_gap_max_rad": r.base_attitude_gap_max,
+            "linear_momentum_residual_max_n_s": r.linear_momentum_residual_max,
+            "angular_momentum_residual_max_n_m_s": r.angular_momentum_residual_max,
+            "com_drift_max_m": r.com_drift_max,
+        }
+        return cls(
+            success=r.success,
+            message=r.message,
+            **{k: float(v) if math.isfinite(v) else None for k, v in values.items()},
+        )
+
+    @classmethod
+    def skipped(cls, reason: str) -> ReplayOut:
+        """The replay section of a plan that was not replayed, and why."""
+        return cls(success=False, message=reason, **dict.fromkeys(cls.model_fields.keys() - {"success", "message"}))
 
 
 class PlanSummary(Output):
@@ -283,6 +330,23 @@ class DurationSearchOut(Output):
     limiting: str = Field(description="what fails at infeasible_duration_s (the plan verdict there)")
     evaluations: int = Field(description="metrics-only plans run by the search")
     rounds: int = Field(description="bisection rounds run")
+
+    @classmethod
+    def from_engine(cls, found: DurationSearch) -> DurationSearchOut:
+        def number(value: float) -> float | None:
+            return value if math.isfinite(value) else None
+
+        return cls(
+            success=found.success,
+            message=found.message,
+            duration_s=found.duration,
+            infeasible_duration_s=number(found.infeasible_duration),
+            relative_gap=number(found.relative_gap),
+            joint_speed_margin_deg_s=number(math.degrees(found.speed_margin)),
+            limiting=found.limiting,
+            evaluations=found.evaluations,
+            rounds=found.rounds,
+        )
 
 
 class ShortestDurationOut(Output):

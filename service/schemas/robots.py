@@ -2,17 +2,26 @@
 
 from __future__ import annotations
 
+import math
+import threading
+from collections import OrderedDict
 from datetime import datetime
+from typing import Annotated, Any
 
-from pydantic import (
-    ConfigDict,
-    Field,
-)
+import numpy as np
+from pydantic import ConfigDict, Field, GetJsonSchemaHandler, model_validator
+from pydantic.json_schema import JsonSchemaValue
+from pydantic_core import CoreSchema
 
+from engine import GJMResult, RobotModel, State
+from engine.errors import ParameterError
+from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.trajectory import PAPER_Q0_DEG
 from engine.urdf import MAX_URDF_BYTES
+from service.infra import jsonio
 from service.schemas.common import (
     DET_UNITS,
+    EngineName,
     Inertia,
     Input,
     JointType,
@@ -24,6 +33,7 @@ from service.schemas.common import (
     Quaternion,
     Rotation,
     Vec3,
+    joint_positions,
 )
 
 # --- robots -------------------------------------------------------------------------------
@@ -62,8 +72,32 @@ class EndEffectorParams(Input):
     C_e: Rotation = Field(description="end-effector frame in the last link's frame (rotation matrix)")
 
 
+_MODELS: OrderedDict[bytes, RobotModel] = OrderedDict()
+_MODELS_LOCK = threading.Lock()
+MODEL_CACHE_SIZE = 64
+
+
+def model_of(parameters: dict[str, Any]) -> RobotModel:
+    """The validated model of a parameter set (a request's or a stored robot's). Models are
+    immutable, so the last few are kept (keyed by their parameters), which spares stored robots
+    the validation on every request; errors name the parameter (``links[2].inertia``)."""
+    key = jsonio.dumps_sorted(parameters)
+    with _MODELS_LOCK:
+        cached = _MODELS.get(key)
+        if cached is not None:
+            _MODELS.move_to_end(key)
+            return cached
+    model = RobotModel.from_dict(parameters)
+    with _MODELS_LOCK:
+        _MODELS[key] = model
+        while len(_MODELS) > MODEL_CACHE_SIZE:
+            _MODELS.popitem(last=False)
+    return model
+
+
 class RobotParams(Input):
-    """A robot parameter set in the schema of ``robot-table1.yaml`` (SI units)."""
+    """A robot parameter set in the schema of the Table-1 robot (``engine/data/table1_robot.json``),
+    SI units."""
 
     name: str = Field(min_length=1, max_length=200, description="the robot's name")
     base: BaseParams = Field(description="the free-floating base (carrier)")
@@ -71,6 +105,9 @@ class RobotParams(Input):
     end_effector: EndEffectorParams | None = Field(
         default=None, description="the end-effector frame (default: the last link's frame)"
     )
+
+    def to_engine(self) -> RobotModel:
+        return model_of(self.model_dump(exclude_none=True))
 
 
 class RobotUrdfIn(Input):
@@ -92,6 +129,17 @@ class RobotUrdfIn(Input):
     )
     name: str | None = Field(default=None, min_length=1, max_length=200, description="the robot's name (default: the URDF's)")
 
+    def to_engine(self) -> RobotModel:
+        """The model of the URDF; a URDF the engine refuses is a ``UrdfError`` naming the element."""
+        tool = None
+        if self.tool_position_m is not None or self.tool_attitude_quaternion is not None:
+            try:
+                rotation = quaternion_to_matrix(self.tool_attitude_quaternion) if self.tool_attitude_quaternion else np.eye(3)
+            except ValueError as exc:
+                raise ParameterError("tool_attitude_quaternion", str(exc)) from None
+            tool = (np.asarray(self.tool_position_m or [0.0, 0.0, 0.0], dtype=float), rotation)
+        return RobotModel.from_urdf(self.urdf, end_effector_link=self.end_effector_link, tool_offset=tool, name=self.name)
+
 
 class JointOut(Output):
     """A joint of a stored robot, with the unit of its position in the API and its limits."""
@@ -103,6 +151,37 @@ class JointOut(Output):
     upper_deg: float | None = Field(default=None, description="revolute joints: upper position limit, deg (null: unlimited)")
     lower_m: float | None = Field(default=None, description="prismatic joints: lower position limit, m (null: unlimited)")
     upper_m: float | None = Field(default=None, description="prismatic joints: upper position limit, m (null: unlimited)")
+
+
+def _degrees(value: float) -> float | None:
+    return math.degrees(value) if math.isfinite(value) else None
+
+
+def _metres(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def joints_of(model: RobotModel) -> tuple[list[JointOut], list[str]]:
+    """The joints with their API units and limits, and notes on the joints without limits."""
+    joints, unlimited = [], []
+    for name, link in zip(model.joint_names, model.links, strict=True):
+        if link.prismatic:
+            joints.append(
+                JointOut(name=name, type="prismatic", unit="m", lower_m=_metres(link.lower), upper_m=_metres(link.upper))
+            )
+        else:
+            joints.append(
+                JointOut(name=name, type="revolute", unit="deg", lower_deg=_degrees(link.lower), upper_deg=_degrees(link.upper))
+            )
+        if not (math.isfinite(link.lower) and math.isfinite(link.upper)):
+            unlimited.append(name)
+    notes = []
+    if unlimited:
+        notes.append(
+            f"joint(s) {', '.join(unlimited)} have no position limit on at least one side (a continuous joint, a revolute "
+            "joint without <limit>, or no lower/upper): treated as unlimited there"
+        )
+    return joints, notes
 
 
 class RobotOut(Output):
@@ -117,6 +196,27 @@ class RobotOut(Output):
     notes: list[str] = Field(default_factory=list, description="what the service assumed, e.g. joints without limits")
     created_at: datetime = Field(description="when it was stored (UTC)")
 
+    @classmethod
+    def from_engine(
+        cls, robot_id: str, name: str, preset: bool, parameters: dict[str, Any], created_at: datetime, model: RobotModel
+    ) -> RobotOut:
+        """A stored robot: its row's fields and its model (the parameters were validated on the
+        way in and normalised since, so they are not validated strictly again)."""
+        joints, notes = joints_of(model)
+        return cls.model_validate(
+            {
+                "id": robot_id,
+                "name": name,
+                "preset": preset,
+                "n_joints": model.n_joints,
+                "parameters": parameters,
+                "joints": joints,
+                "notes": notes,
+                "created_at": created_at,
+            },
+            strict=False,
+        )
+
 
 class RobotList(Output):
     items: list[RobotOut] = Field(description="this page of robots, oldest first")
@@ -126,7 +226,7 @@ class RobotList(Output):
 class JacobianRequest(Input):
     """A state of the robot: its joint positions and the base pose."""
 
-    joint_angles_deg: JointValues | None = Field(
+    joint_angles_deg: Annotated[JointValues | None, EngineName("q")] = Field(
         default=None, description="revolute joint angles, deg (null at prismatic joints)", examples=[list(PAPER_Q0_DEG)]
     )
     joint_displacements_m: JointValues | None = Field(
@@ -134,6 +234,17 @@ class JacobianRequest(Input):
     )
     base_position_m: Vec3 | None = Field(default=None, description="base CoM in world, m (default origin)")
     base_attitude_quaternion: Quaternion | None = Field(default=None, description="base attitude [w, x, y, z] (default identity)")
+
+    def to_engine(self, model: RobotModel) -> State:
+        """The engine's state of ``model`` (errors name ``q``, ``base_position``, ``base_attitude``)."""
+        q = joint_positions(
+            model, self.joint_angles_deg, self.joint_displacements_m, ("joint_angles_deg", "joint_displacements_m")
+        )
+        try:
+            attitude = quaternion_to_matrix(self.base_attitude_quaternion) if self.base_attitude_quaternion else np.eye(3)
+        except ValueError as exc:
+            raise ParameterError("base_attitude", str(exc)) from None
+        return State(q, np.asarray(self.base_position_m if self.base_position_m else np.zeros(3), dtype=float), attitude)
 
 
 class JacobianOut(Output):
@@ -150,3 +261,55 @@ class JacobianOut(Output):
     )
     ee_position_m: list[float] = Field(description="end-effector position, m (world)")
     ee_attitude_quaternion: list[float] = Field(description="end-effector attitude [w, x, y, z] (end effector -> world)")
+
+    @classmethod
+    def from_engine(cls, gjm: GJMResult) -> JacobianOut:
+        def number(value: float | None) -> float | None:
+            return float(value) if value is not None and math.isfinite(value) else None
+
+        return cls(
+            gjm=gjm.J_g.tolist(),
+            singular_values=gjm.singular_values.tolist(),
+            determinant=number(gjm.determinant),
+            manipulability=gjm.manipulability,
+            condition_number=number(gjm.condition_number),
+            ee_position_m=gjm.ee_position.tolist(),
+            ee_attitude_quaternion=matrix_to_quaternion(gjm.ee_attitude).tolist(),
+        )
+
+
+#: Vendor key of the schemas whose ``robot_id`` and ``robot`` are exclusive (see OneRobot).
+ROBOT_CHOICE = "x-exactly-one-of"
+
+
+class OneRobot(Input):
+    """A request naming its robot: ``robot_id`` (a stored robot) or ``robot`` (inline), exactly
+    one of the two (``oneOf`` in the schema)."""
+
+    @classmethod
+    def __get_pydantic_json_schema__(cls, core_schema: CoreSchema, handler: GetJsonSchemaHandler) -> JsonSchemaValue:
+        # Marked here, split in the OpenAPI document (service.openapi.split_robot_choice) into a
+        # oneOf of two objects: not json_schema_extra, which a subclass's model_config replaces.
+        schema = handler.resolve_ref_schema(handler(core_schema))
+        schema[ROBOT_CHOICE] = ["robot_id", "robot"]
+        return schema
+
+    # Optional but not nullable: left out when not used (a null is refused like any wrong type).
+    robot_id: str = Field(  # type: ignore[assignment]
+        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
+    )
+    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> Any:
+        if (getattr(self, "robot_id", None) is None) == (getattr(self, "robot", None) is None):
+            raise ValueError("give exactly one of robot_id (a stored robot, e.g. 'table1') and robot (inline parameters)")
+        return self
+
+    def stored(self) -> dict[str, Any]:
+        """The request as stored (JSON; the robot field not given is left out, as in the request)."""
+        data = self.model_dump(mode="json")
+        for name in ("robot_id", "robot"):
+            if data.get(name) is None:
+                data.pop(name, None)
+        return data

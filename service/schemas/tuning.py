@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import (
     ConfigDict,
@@ -13,7 +14,18 @@ from pydantic import (
 )
 from typing_extensions import TypeAliasType
 
-from engine.tuning import MAX_BITS_PER_GENE, MAX_GENERATIONS, MAX_POPULATION
+from engine import Objective, PlanOptions, RobotModel
+from engine.inverses import REGISTRY
+from engine.tuning import (
+    MAX_BITS_PER_GENE,
+    MAX_GENERATIONS,
+    MAX_POPULATION,
+    GenerationRecord,
+    TuneResult,
+    TuningProblem,
+    ga,
+    improvement_percent,
+)
 from service.schemas.common import (
     AGGREGATION_DESCRIPTION,
     MAX_MAGNITUDE,
@@ -23,15 +35,15 @@ from service.schemas.common import (
     AttitudeTerm,
     Input,
     JobStatus,
-    OneRobot,
     Output,
     TaskAggregationName,
-    TunableMethodName,
     Weights,
+    located,
+    vocabulary,
 )
-from service.schemas.methods import MethodBounds, MethodParams
-from service.schemas.plans import PlanMetrics
-from service.schemas.robots import RobotParams
+from service.schemas.methods import MethodBounds, MethodParams, TunableMethodName, params_out
+from service.schemas.plans import PlanMetrics, metrics_out
+from service.schemas.robots import OneRobot
 from service.schemas.tasks import TaskIn
 
 # --- tuning jobs --------------------------------------------------------------------------
@@ -49,6 +61,16 @@ class GASettings(Input):
     )
     elitism: int = Field(default=1, ge=0, description="best individuals kept unchanged; < population")
     seed: int | None = Field(default=0, ge=0, le=2**63 - 1, description="null for a random seed")
+
+    def to_engine(self) -> ga.GASettings:
+        return ga.GASettings(
+            self.population,
+            self.generations,
+            self.crossover_probability,
+            self.mutation_probability,
+            self.bits_per_gene,
+            self.elitism,
+        )
 
     @field_validator("elitism")
     @classmethod
@@ -68,6 +90,9 @@ class ObjectiveSettings(Input):
     task_aggregation: TaskAggregationName = Field(
         default="mean", description="how the tasks' B combine: `mean` or `max` (the worst task)"
     )
+
+    def to_engine(self) -> Objective:
+        return Objective((self.weights[0], self.weights[1]), self.aggregation, self.attitude_term)
 
 
 class TuningJobRequest(OneRobot):
@@ -96,11 +121,6 @@ class TuningJobRequest(OneRobot):
         },
     )
 
-    # Optional but not nullable: left out when not used (a null is refused like any wrong type).
-    robot_id: str = Field(  # type: ignore[assignment]
-        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
-    )
-    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
     tasks: list[TaskIn] = Field(min_length=1, max_length=20, description="the tasks B is evaluated on")
     method: TunableMethodName = Field(default="adaptive", description="the inverse to tune (a method with parameters)")
     bounds: MethodBounds | None = Field(
@@ -111,6 +131,28 @@ class TuningJobRequest(OneRobot):
     feedback_gain: float = Field(default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback")
     compare_with_dls: bool = Field(default=True, description="also tune constant-damping DLS with the same GA settings")
 
+    def phases(self) -> list[tuple[str, str, dict[str, list[float]] | None]]:
+        """The GA runs of the job: ``(method, role, bounds)``, the tuned method then (with
+        ``compare_with_dls``) the DLS baseline with its default bounds."""
+        tuned = (self.method, "tuned", self.bounds.given() if self.bounds else None)
+        return [tuned, ("dls", "dls_baseline", None)] if self.compare_with_dls else [tuned]
+
+    def problems(self, model: RobotModel) -> list[TuningProblem]:
+        """The engine's problem of each phase (its tasks and bounds checked once: errors name the
+        API field)."""
+        tasks = []
+        for i, task in enumerate(self.tasks):
+            with located(task, "body", "tasks", i):
+                tasks.append(task.to_engine(model))
+        options = PlanOptions(feedback_gain=self.feedback_gain, objective=self.objective.to_engine())
+        with located(self, "body"):
+            return [
+                TuningProblem.build(
+                    model, tasks, method, bounds=bounds, options=options, task_aggregation=self.objective.task_aggregation
+                )
+                for method, _, bounds in self.phases()
+            ]
+
 
 class HistoryRecord(Output):
     generation: int = Field(description="the generation (0: the initial population)")
@@ -119,9 +161,21 @@ class HistoryRecord(Output):
     feasible: int = Field(description="feasible individuals in this generation (within the joint speed limit)")
 
 
+def history_record(record: GenerationRecord) -> dict[str, Any]:
+    """A generation of the engine's GA as the API's history record (JSON-ready)."""
+    return {
+        "generation": record.generation,
+        "best": record.best if math.isfinite(record.best) else None,
+        "mean": record.mean if math.isfinite(record.mean) else None,
+        "feasible": record.feasible,
+    }
+
+
 PhaseRole = TypeAliasType("PhaseRole", Literal["tuned", "dls_baseline"])
-PhaseName = TypeAliasType("PhaseName", Literal["dls", "adaptive", "wdls", "sdls", "svf", "done"])
-assert list(get_args(PhaseName.__value__)) == [*get_args(TunableMethodName.__value__), "done"]
+if TYPE_CHECKING:
+    PhaseName = str
+else:
+    PhaseName = vocabulary("PhaseName", [*(m.name for m in REGISTRY if m.tunable), "done"])
 
 
 class JobPhase(Output):
@@ -201,3 +255,32 @@ class TuningJobResult(Output):
         default_factory=list,
         description="e.g. a tuned parameter on a search bound, where the optimum may lie beyond it: widen that bound",
     )
+
+    @classmethod
+    def from_engine(cls, tuned: TuneResult, baseline: TuneResult | None, evaluations: int, elapsed_s: float) -> TuningJobResult:
+        """The result of a job's GA runs (the tuned method, and the DLS baseline if any)."""
+
+        def number(value: float) -> float | None:
+            return value if math.isfinite(value) else None
+
+        return cls.model_validate(
+            {
+                "best_params": params_out(tuned.best_params),
+                "best_objective_b": number(tuned.best_objective_b),
+                "best_metrics": [metrics_out(m) for m in tuned.best_metrics],
+                "history": [history_record(h) for h in tuned.history],
+                "evaluations": evaluations,
+                "elapsed_s": elapsed_s,
+                "dls_baseline": None
+                if baseline is None
+                else {
+                    "lambda": baseline.best_params.get("lambda"),
+                    "objective_b": number(baseline.best_objective_b),
+                    "warnings": baseline.warnings,
+                },
+                "improvement_over_dls_percent": None
+                if baseline is None
+                else number(improvement_percent(baseline.best_objective_b, tuned.best_objective_b)),
+                "warnings": tuned.warnings,
+            }
+        )

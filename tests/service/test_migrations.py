@@ -24,7 +24,7 @@ from service.infra.migrate import MigrationError, current_revision, downgrade, h
 from service.infra.storage import unpack_trajectory
 
 ROOT = Path(__file__).resolve().parents[2]
-TABLES = {"robots", "plans", "tuning_jobs", "web_sessions", "service_probes", "landscapes"}
+TABLES = {"robots", "plans", "tuning_jobs", "tuning_job_generations", "web_sessions", "service_probes", "landscapes"}
 
 
 def _schema(path: Path) -> list[tuple[str, ...]]:
@@ -39,7 +39,7 @@ def test_upgrade_downgrade_roundtrip(tmp_path: Path) -> None:
     engine = make_engine(url)
     try:
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == head_revision(url) == "0003"
+        assert current_revision(engine) == head_revision(url) == "0004"
         columns = {c["name"] for c in inspect(engine).get_columns("tuning_jobs")}
         assert {"status", "lease_owner", "lease_expires_at", "attempts", "progress", "result", "idempotency_key"} <= columns
         assert "idempotency_fingerprint" in columns
@@ -85,6 +85,44 @@ def test_0002_converts_stored_trajectories_both_ways(tmp_path: Path) -> None:
     assert json.loads(stored) == trajectory
 
 
+def test_0004_moves_job_history_into_rows_and_back(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'jobs.db'}"
+    upgrade(url, "0003")
+    history = [
+        {"phase": "adaptive", "role": "tuned", "generation": 0, "best": 0.003, "mean": 0.01, "feasible": 5},
+        {"phase": "adaptive", "role": "tuned", "generation": 1, "best": 0.002, "mean": None, "feasible": 0},
+        {"phase": "dls", "generation": 0, "best": 0.004, "mean": 0.02, "feasible": 3},  # an old row without a role
+    ]
+    progress = {"generation": 1, "generations": 2, "evaluations": 12, "attempt": 2, "history": history}
+    with sqlite3.connect(tmp_path / "jobs.db") as con:
+        con.execute(
+            "INSERT INTO tuning_jobs (id, status, request, progress, attempts, max_attempts, cancel_requested, created_at, "
+            "updated_at) VALUES ('j', 'running', ?, ?, 2, 3, 0, '2026-01-01', '2026-01-01')",
+            (json.dumps({"method": "adaptive", "ga": {"generations": 1}}), json.dumps(progress)),
+        )
+    upgrade(url)
+    with sqlite3.connect(tmp_path / "jobs.db") as con:
+        rows = con.execute(
+            "SELECT attempt, seq, phase, role, generation, best, mean, feasible FROM tuning_job_generations ORDER BY seq"
+        ).fetchall()
+        (stored,) = con.execute("SELECT progress FROM tuning_jobs WHERE id = 'j'").fetchone()
+    assert rows == [
+        (2, 1, "adaptive", "tuned", 0, 0.003, 0.01, 5),
+        (2, 2, "adaptive", "tuned", 1, 0.002, None, 0),
+        (2, 3, "dls", "dls_baseline", 0, 0.004, 0.02, 3),
+    ]
+    summary = json.loads(stored)
+    assert "history" not in summary and summary["records"] == 3 and summary["evaluations"] == 12
+    downgrade(url, "0003")
+    with sqlite3.connect(tmp_path / "jobs.db") as con:
+        (stored,) = con.execute("SELECT progress FROM tuning_jobs WHERE id = 'j'").fetchone()
+    back = json.loads(stored)["history"]
+    assert [r["role"] for r in back] == ["tuned", "tuned", "dls_baseline"]
+    assert [(r["generation"], r["best"], r["mean"], r["feasible"]) for r in back] == [
+        (h["generation"], h["best"], h["mean"], h["feasible"]) for h in history
+    ]
+
+
 def test_migrate_killed_at_random_moments_never_leaves_a_broken_database(tmp_path: Path) -> None:
     """30 kills: mostly in the window where the DDL runs (just after the file appears), some at
     any moment of the process. Each time, the next migrate succeeds and the schema is exactly
@@ -120,7 +158,7 @@ def test_migrate_killed_at_random_moments_never_leaves_a_broken_database(tmp_pat
         upgrade(url)  # must succeed whatever state the kill left
         assert _schema(path) == expected, f"trial {trial}"
         with sqlite3.connect(path) as con:
-            assert con.execute("SELECT version_num FROM alembic_version").fetchall() == [("0003",)]
+            assert con.execute("SELECT version_num FROM alembic_version").fetchall() == [("0004",)]
     assert outcomes["killed during or after the DDL"] >= 15, outcomes
 
 
@@ -172,4 +210,4 @@ def test_cli_migrate_seeds_preset_and_alembic_ini_works(tmp_path: Path) -> None:
         text=True,
     )
     assert out.returncode == 0, out.stderr
-    assert "0003" in out.stdout
+    assert "0004" in out.stdout

@@ -1,0 +1,320 @@
+"""Synchronous plans: a request converted once to the engine's objects, planned (and replayed),
+stored and answered; stored plans read back.
+
+A plan's trajectory is stored as its SI record (:func:`record_of`: the planner's arrays by their
+engine names, joints in rad or m, attitudes as unit quaternions) in a compressed ``.npz``
+(:mod:`service.infra.storage`), and converted to the API's units only on the way out
+(:meth:`service.schemas.plans.Trajectory.arrays`). Plans stored before the record existed hold the
+API's arrays; :func:`record_from_storage` reads both.
+
+Plan bodies are written once, by orjson from the arrays (:mod:`service.infra.jsonio`): the
+trajectory is neither copied into Python lists nor validated again on the way out."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from engine import DurationSearch, Inverse, PlanResult, PlanSetup, RobotModel, replay, run_plan, shortest_duration
+from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
+from service.errors import ApiValidationError, NotFoundError
+from service.infra import jsonio
+from service.infra.db import Database
+from service.infra.metrics import count_plan
+from service.infra.quota import check_quota
+from service.infra.settings import Settings
+from service.infra.storage import pack_trajectory, unpack_trajectory
+from service.models import Plan
+from service.schemas.common import located
+from service.schemas.methods import MethodOut
+from service.schemas.plans import (
+    PLAN_SECTIONS,
+    DurationSearchOut,
+    PlanList,
+    PlanRequest,
+    PlanSummary,
+    ReplayOut,
+    ShortestDurationRequest,
+    Trajectory,
+    metrics_out,
+)
+from service.usecases import robots, rows
+
+#: A plan whose joints turn more than this in all is not replayed (not physically meaningful).
+REPLAY_MAX_TRAVEL_RAD = 200.0
+
+
+def _quaternions(R: np.ndarray) -> np.ndarray:
+    ok = np.all(np.isfinite(R), axis=(-2, -1))
+    out = np.full(R.shape[:-2] + (4,), np.nan)
+    if np.any(ok):
+        out[ok] = matrix_to_quaternion(R[ok])
+    return out
+
+
+def record_of(result: PlanResult, prismatic: np.ndarray) -> dict[str, np.ndarray]:
+    """The stored record of a plan: its arrays in SI units by their engine names, attitudes as
+    unit quaternions ``[w, x, y, z]``, and ``prismatic (n,)`` (1.0 for a prismatic joint)."""
+    return {
+        "t": result.t,
+        "q": result.q,
+        "qd": result.qd,
+        "prismatic": np.asarray(prismatic, dtype=float),
+        "base_position": result.base_position,
+        "base_attitude": _quaternions(result.base_attitude),
+        "ee_position": result.ee_position,
+        "ee_attitude": _quaternions(result.ee_attitude),
+        "ee_position_desired": result.ee_position_desired,
+        "ee_attitude_desired": _quaternions(result.ee_attitude_desired),
+        "singular_values": result.singular_values,
+        "det_J_g": result.det_J_g,
+        "damping": result.damping,
+        "position_error": result.position_error,
+        "attitude_error": result.attitude_error,
+    }
+
+
+def record_from_storage(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A stored plan's SI record: the record itself, or (plans stored before it existed) the
+    API's arrays converted back (degrees to radians; prismatic columns from the ``_m`` arrays)."""
+    if "joint_angles_deg" not in arrays:
+        return arrays
+    q_deg, qd_deg = arrays["joint_angles_deg"], arrays["joint_velocities_deg_s"]
+    prismatic = np.zeros(q_deg.shape[1:], dtype=bool)
+    q, qd = np.radians(q_deg), np.radians(qd_deg)
+    if "joint_displacements_m" in arrays:
+        prismatic = np.isfinite(arrays["joint_displacements_m"]).any(axis=0)
+        q = np.where(prismatic, arrays["joint_displacements_m"], q)
+        qd = np.where(prismatic, arrays["joint_velocities_m_s"], qd)
+    names = {
+        "t": "t_s",
+        "base_position": "base_position_m",
+        "base_attitude": "base_attitude_quaternion",
+        "ee_position": "ee_position_m",
+        "ee_attitude": "ee_attitude_quaternion",
+        "ee_position_desired": "ee_position_desired_m",
+        "ee_attitude_desired": "ee_attitude_desired_quaternion",
+        "singular_values": "singular_values",
+        "det_J_g": "det_gjm",
+        "damping": "damping",
+        "position_error": "position_error_m",
+        "attitude_error": "attitude_error_rad",
+    }
+    return {"q": q, "qd": qd, "prismatic": prismatic.astype(float), **{k: arrays[v] for k, v in names.items()}}
+
+
+def attitudes(quaternions: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` of a record's quaternions (NaN where not finite)."""
+    ok = np.all(np.isfinite(quaternions), axis=-1)
+    out = np.full(quaternions.shape[:-1] + (3, 3), np.nan)
+    if np.any(ok):
+        out[ok] = quaternion_to_matrix(quaternions[ok])
+    return out
+
+
+def replay_skip_reason(result: PlanResult, max_steps: int) -> str | None:
+    """Why a plan is not replayed synchronously, or None. The replay (a compiled DOP853 at tight
+    tolerances) costs more the longer the plan and the further the joints turn: a plan longer
+    than ``max_steps`` (``SPACEARM_MAX_REPLAY_STEPS``) or a diverged plan with absurd joint rates
+    (found by the fuzz: 1e10 deg/s) would keep the request busy for minutes."""
+    qd = np.nan_to_num(np.abs(result.qd), nan=np.inf)
+    dt = np.diff(result.t)
+    if dt.shape[0] > max_steps:
+        return (
+            f"not replayed: {dt.shape[0]} steps, more than the {max_steps} replayed synchronously "
+            "(SPACEARM_MAX_REPLAY_STEPS); replay it with the engine's replay() offline"
+        )
+    if qd.shape[0] < dt.shape[0] or dt.shape[0] == 0:
+        return None
+    travel = float(np.sum(np.max(qd[: dt.shape[0]], axis=1) * dt))
+    if not math.isfinite(travel):
+        return "not replayed: the plan is not finite"
+    if travel > REPLAY_MAX_TRAVEL_RAD:
+        return (
+            f"not replayed: the planned joints turn {travel:.3g} rad in all (more than {REPLAY_MAX_TRAVEL_RAD:g} rad), "
+            "the plan is not physically meaningful"
+        )
+    return None
+
+
+@dataclass(frozen=True)
+class Planned:
+    """A request's plan, ready to store: the row and the SI record of its trajectory."""
+
+    row: Plan
+    record: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A request converted to the engine's objects (once)."""
+
+    robot_id: str | None
+    model: RobotModel
+    setup: PlanSetup
+    inverse: Inverse
+
+
+def prepare(db: Database, body: PlanRequest) -> Prepared:
+    """Resolve the robot and convert the request: 422s name the API field the engine refused."""
+    with db.session() as session:  # no connection held while planning
+        robot_id, model = robots.resolve(session, body.robot_id, body.robot)
+    with located(body.task, "body", "task"):
+        task = body.task.to_engine(model)
+    with located(body.method, "body", "method"):
+        inverse = body.method.to_engine()
+    with located(body, "body"):
+        setup = PlanSetup(model, task, body.options())
+    return Prepared(robot_id, model, setup, inverse)
+
+
+def finish(
+    body: PlanRequest, prepared: Prepared, result: PlanResult, settings: Settings, started: float, request: dict[str, Any]
+) -> Planned:
+    """Replay the plan if asked and build its row (``request``: the request as stored)."""
+    skipped = replay_skip_reason(result, settings.max_replay_steps) if body.replay else None
+    checked = replay(prepared.model, result) if body.replay and skipped is None else None
+    replayed = ReplayOut.from_engine(checked) if checked is not None else ReplayOut.skipped(skipped) if skipped else None
+    record = record_of(result, prepared.model.prismatic)
+    row = Plan(
+        robot_id=prepared.robot_id,
+        request=request,
+        method=MethodOut.from_engine(result.inverse, result.secondary).model_dump(mode="json"),
+        success=result.success,
+        message=result.message,
+        metrics=metrics_out(result.metrics),
+        trajectory_data=pack_trajectory(record),
+        replay=replayed.model_dump(mode="json") if replayed is not None else None,
+        elapsed_s=time.perf_counter() - started,
+    )
+    return Planned(row, record)
+
+
+def compute(db: Database, settings: Settings, body: PlanRequest) -> Planned:
+    """Plan (and replay) a request."""
+    started = time.perf_counter()
+    prepared = prepare(db, body)
+    result = run_plan(prepared.setup, prepared.inverse)
+    return finish(body, prepared, result, settings, started, jsonio.clean(body.stored()))
+
+
+def compute_shortest(db: Database, settings: Settings, body: ShortestDurationRequest) -> tuple[Planned, DurationSearchOut]:
+    """The shortest feasible duration of a request's task, and the plan at it (whose stored
+    request carries that duration, so posting it to ``/v1/plans`` plans it again)."""
+    started = time.perf_counter()
+    prepared = prepare(db, body)
+    with located(body.search, "body", "search"):
+        found: DurationSearch = shortest_duration(
+            prepared.setup,
+            prepared.inverse,
+            relative_tolerance=body.search.relative_tolerance,
+            candidates=body.search.candidates,
+            max_duration=body.search.max_duration_s,
+        )
+    stored = body.stored()
+    del stored["search"]
+    stored["task"] = {**stored["task"], **body.task.path_timing(found.plan.task)}
+    request = jsonio.clean(PlanRequest.model_validate_json(jsonio.dumps(stored)).stored())
+    return finish(body, prepared, found.plan, settings, started, request), DurationSearchOut.from_engine(found)
+
+
+def store(db: Database, settings: Settings, planned: Planned) -> Plan:
+    """Store a plan within the quota; committed before the response goes out (a client's next
+    request must see it)."""
+    row = planned.row
+    with db.session() as session:
+        check_quota(session, settings.storage_quota_bytes, len(row.trajectory_data))
+        session.add(row)
+        session.commit()
+    count_plan(row.method["name"], row.success, row.elapsed_s)
+    return row
+
+
+SUMMARY_COLUMNS = (Plan.id, Plan.robot_id, Plan.method, Plan.success, Plan.message, Plan.metrics, Plan.elapsed_s, Plan.created_at)
+
+
+def summary(row: Plan | Any) -> PlanSummary:
+    """A plan's summary from its row (or a row of :data:`SUMMARY_COLUMNS`)."""
+    return PlanSummary.model_validate(
+        {
+            "id": row.id,
+            "robot_id": row.robot_id,
+            "method": row.method,
+            "success": row.success,
+            "message": row.message,
+            "metrics": row.metrics,
+            "elapsed_s": row.elapsed_s,
+            "created_at": row.created_at,
+        },
+        strict=False,
+    )
+
+
+def body_json(plan_summary: PlanSummary, sections: set[str], record: dict[str, np.ndarray] | None, replayed: Any) -> bytes:
+    """The JSON body of a plan: its summary and the ``sections`` asked for."""
+    parts: dict[str, Any] = {}
+    if "trajectory" in sections and record is not None:
+        parts["trajectory"] = Trajectory.arrays(record)
+    if "replay" in sections:
+        parts["replay"] = replayed
+    ordered = {name: parts[name] for name in PLAN_SECTIONS if name in parts}
+    return jsonio.dumps_large({**plan_summary.model_dump(mode="json"), **ordered})
+
+
+def listing(session: Session, limit: int, offset: int) -> PlanList:
+    total = session.scalar(select(func.count()).select_from(Plan)) or 0
+    rows = session.execute(select(*SUMMARY_COLUMNS).order_by(Plan.created_at.desc(), Plan.id).limit(limit).offset(offset)).all()
+    return PlanList(items=[summary(r) for r in rows], total=total)
+
+
+def read(session: Session, plan_id: str, sections: set[str]) -> bytes:
+    """A stored plan's JSON body with the ``sections`` asked for."""
+    columns: list[Any] = [*SUMMARY_COLUMNS, Plan.replay]
+    if "trajectory" in sections:
+        columns.append(Plan.trajectory_data)
+    found = session.execute(select(*columns).where(Plan.id == plan_id)).first()
+    if found is None:
+        raise NotFoundError("plan", plan_id)
+    record = record_from_storage(unpack_trajectory(found.trajectory_data)) if "trajectory" in sections else None
+    return body_json(summary(found), sections, record, found.replay)
+
+
+def delete(session: Session, plan_id: str) -> None:
+    rows.delete(session, Plan, plan_id, "plan")
+
+
+def parse_sections(fields: str | None) -> set[str]:
+    """The sections a ``fields`` query asks for; unknown names are a 422 naming the valid ones."""
+    if fields is None:
+        return set(PLAN_SECTIONS)
+    names = {name.strip() for name in fields.split(",") if name.strip()}
+    unknown = sorted(names - set(PLAN_SECTIONS))
+    if unknown:
+        msg = f"unknown section(s) {', '.join(unknown)}; valid: {', '.join(PLAN_SECTIONS)}"
+        raise ApiValidationError(f"fields: {msg}", [{"loc": ["query", "fields"], "msg": msg}])
+    return names
+
+
+def rehearse(db: Database, settings: Settings) -> None:
+    """Take the OpenAPI example of a plan request through every step of a plan request, the
+    database insert included, and roll it back: the API's start-up runs it so that the first
+    real request finds the connection, the compiled statements and the code paths warm."""
+    body = PlanRequest.model_validate(PlanRequest.model_config["json_schema_extra"]["examples"][0])  # type: ignore[index]
+    planned = compute(db, settings, body)
+    with db.sessionmaker() as session:
+        try:
+            row = planned.row
+            session.add(row)
+            session.flush()
+            body_json(summary(row), set(PLAN_SECTIONS), planned.record, row.replay)
+            check_quota(session, settings.storage_quota_bytes, len(row.trajectory_data))
+            found = session.execute(select(*SUMMARY_COLUMNS, Plan.replay, Plan.trajectory_data).where(Plan.id == row.id)).one()
+            record_from_storage(unpack_trajectory(found.trajectory_data))
+        finally:
+            session.rollback()
