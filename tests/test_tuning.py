@@ -46,7 +46,9 @@ def test_same_seed_same_result(robot, task, bowl):
 
 
 def test_infeasible_everywhere_is_a_failed_result(robot, task, monkeypatch):
-    monkeypatch.setattr(tuning_problem, "evaluate_chunk", lambda chunk, stop=None: np.full((len(chunk.params["lambda"]), 1), np.inf))
+    monkeypatch.setattr(
+        tuning_problem, "evaluate_chunk", lambda chunk, stop=None: np.full((len(chunk.params["lambda"]), 1), np.inf)
+    )
     result = tune(robot, task, "dls", population=6, generations=2, seed=0)
     assert not result.success and "no feasible" in result.message
     assert math.isinf(result.best_objective_b)

@@ -85,3 +85,58 @@ def test_cancel_flags_running_job(tmp_path: Path) -> None:
     assert queue.mark_cancelled(db, c)
     assert queue.request_cancel(db, "missing") is None
     db.dispose()
+
+
+def test_a_job_writes_its_progress_once_per_generation(tmp_path: Path) -> None:
+    """A worker appends one history row and updates the progress summary in one statement pair,
+    one transaction per finished generation (never rewriting the history); the watcher's lease
+    renewals carry no progress."""
+    from sqlalchemy import event, select
+
+    from service.models import JobGeneration
+    from service.schemas.common import PAPER_TASK_EXAMPLE
+    from service.usecases.tuning_run import run_job
+
+    db = _db(tmp_path)
+    from service.usecases.robots import seed_presets
+
+    seed_presets(db)
+    generations = 3
+    request = {
+        "robot_id": "table1",
+        "tasks": [{**PAPER_TASK_EXAMPLE, "dt_s": 0.5}],
+        "method": "adaptive",
+        "ga": {"population": 6, "generations": generations, "seed": 2},
+        "compare_with_dls": True,
+    }
+    with db.session() as s:
+        job = TuningJob(status="queued", request=request, attempts=0, max_attempts=3, cancel_requested=False)
+        s.add(job)
+        s.flush()
+        job_id = job.id
+    claim = queue.claim(db, "w", 60)
+    assert claim is not None and claim.job_id == job_id
+    writes: list[str] = []
+
+    @event.listens_for(db.engine, "before_cursor_execute")
+    def _count(conn, cursor, statement, parameters, context, executemany):  # type: ignore[no-untyped-def]
+        sql = " ".join(statement.split()).upper()
+        if sql.startswith("INSERT INTO TUNING_JOB_GENERATIONS"):
+            writes.append("row")
+        elif sql.startswith("UPDATE TUNING_JOBS SET") and "PROGRESS" in sql.split(" WHERE ")[0]:
+            writes.append("progress")
+
+    assert run_job(db, claim, 60.0, threading.Event()) == "succeeded"
+    phases = 2
+    per_phase = generations + 1  # the initial population and each generation
+    assert writes.count("row") == phases * per_phase
+    # one summary per finished generation, and the final one with the result
+    assert writes.count("progress") == phases * per_phase + 1
+    with db.session() as s:
+        rows = s.scalars(select(JobGeneration).where(JobGeneration.job_id == job_id).order_by(JobGeneration.seq)).all()
+        assert [r.seq for r in rows] == list(range(1, phases * per_phase + 1))
+        assert [r.role for r in rows] == ["tuned"] * per_phase + ["dls_baseline"] * per_phase
+        job = s.get(TuningJob, job_id)
+        assert job.status == "succeeded" and "history" not in job.progress and job.progress["records"] == len(rows)
+        assert job.result["best_params"].keys() == {"lambda_max", "epsilon"}
+    db.dispose()
