@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 RUN_STAMP := $(VENV)/.installed-runtime
 RUN_ARGS ?=
 
-.PHONY: run test lint typecheck bench clean
+.PHONY: run test lint typecheck bench docs vendor clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -39,8 +39,17 @@ test: $(STAMP)
 	$(BIN)/mypy engine service
 	$(BIN)/python -m pytest -q
 
+# The reference (docs/) as a static site in var/site; `$(BIN)/mkdocs serve` to read it while editing.
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict
+
 bench: $(STAMP)
 	$(BIN)/python bench/bench_engine.py
+
+# The 3D view's three.js bundle (service/static/three-<version>.min.js), rebuilt from the versions
+# pinned by web/package-lock.json (needs Node.js and npm; the test suite checks it with --check).
+vendor:
+	sh web/build.sh
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -38,7 +38,7 @@ def plan_body() -> dict[str, Any]:
         "id": "bench",
         "success": result.success,
         "message": result.message,
-        "trajectory": Trajectory.arrays(record_of(result, robot.prismatic)),
+        "trajectory": Trajectory.arrays(record_of(result, robot)),
     }
 
 

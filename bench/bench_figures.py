@@ -40,7 +40,7 @@ def main() -> None:
     start = time.perf_counter()
     result = plan(robot, task, make_inverse("adaptive", lambda_max=0.0571, epsilon=0.0677))
     print(f"plan: {len(result.t) - 1} steps in {time.perf_counter() - start:.2f} s ({result.message})")
-    stored = pack_trajectory(record_of(result, robot.prismatic))
+    stored = pack_trajectory(record_of(result, robot))
     start = time.perf_counter()
     data = figures.PlanData(
         record_from_storage(unpack_trajectory(stored)),
@@ -65,6 +65,9 @@ def main() -> None:
     start = time.perf_counter()
     figures.render_compare_figure([data, data], "svg")
     print(f"compare tracking-errors (2 plans, svg): {time.perf_counter() - start:.3f} s")
+    start = time.perf_counter()
+    figures.render_compare_figure([data, data], "svg", name="joint-velocities")
+    print(f"compare joint-velocities (2 plans, svg): {time.perf_counter() - start:.3f} s")
     assert np.isfinite(data.t[-1])
 
 

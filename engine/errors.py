@@ -23,8 +23,9 @@ class ParameterError(ValueError):
         return ParameterError(f"{prefix}.{self.field}", self.reason)
 
 
-def finite_array(value: Any, shape: tuple[int, ...], field: str) -> NDArray[np.float64]:
-    """``value`` as a read-only float array of ``shape`` with every number finite."""
+def finite_array(value: Any, shape: tuple[int, ...], field: str, bound: float | None = None) -> NDArray[np.float64]:
+    """``value`` as a read-only float array of ``shape`` with every number finite (and, with
+    ``bound``, of magnitude at most ``bound``)."""
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -33,5 +34,7 @@ def finite_array(value: Any, shape: tuple[int, ...], field: str) -> NDArray[np.f
         raise ParameterError(field, f"expected shape {shape}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ParameterError(field, "every number must be finite")
+    if bound is not None and arr.size and float(np.max(np.abs(arr))) > bound:
+        raise ParameterError(field, f"every number must be within +-{bound:g}")
     arr.setflags(write=False)
     return arr

@@ -273,6 +273,20 @@ REGISTRY: tuple[Method, ...] = (
         "(>= sigma_0, tending to sigma for large sigma); then ``qd = sum_i sigma_hat_i^-1 v_i u_i^T xdot``.",
         threshold="sigma0",
     ),
+    Method(
+        "bounded",
+        kernels.BOUNDED,
+        (_lam(0.03),),
+        "damped least squares held within the joint speed and position limits by a QP at each step",
+        "Bounded damped least squares, the small QP of each step of mink, pink and Drake's differential inverse "
+        "kinematics (Drake's ``DoDifferentialInverseKinematics``; mink 0.0.5, 2024) on the free-floating GJM: "
+        "``min |J qd - xdot|^2 + lambda^2 |qd|^2`` subject to ``|qd_i| <= v_i`` (the task's speed limits) and "
+        "``q_min <= q_k + qd dt <= q_max``, solved exactly by the dual active-set method of Goldfarb and Idnani "
+        "(1983) on the GJM's thin SVD (:mod:`engine.kernels.qp`). It equals DLS where no bound is active and meets "
+        "the speed and position limits by construction; a secondary objective's null-space motion enters the QP "
+        "(``lambda^2 |qd - z|^2``, which is DLS plus ``z`` when nothing binds). Outside the planner (no joint "
+        "state) it is DLS.",
+    ),
 )
 METHODS: dict[str, Method] = {m.name: m for m in REGISTRY}
 

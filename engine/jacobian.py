@@ -70,8 +70,15 @@ class GJMResult:
     message: str = "ok"
 
 
+NOT_FINITE = (
+    "the GJM at this state is not finite (NaN or infinite entries): the robot's masses or inertias are too small, "
+    "or too far apart in scale, for double precision"
+)
+
+
 def generalized_jacobian(model: RobotModel, state: State) -> GJMResult:
-    """GJM of ``model`` at ``state`` with zero total momentum (free floating)."""
+    """GJM of ``model`` at ``state`` with zero total momentum (free floating); ``success`` is
+    false (and ``message`` says why) when it is not finite."""
     kin = state_kinematics(model, state)
     J_all, base_map = gjm_batch(model, state.q[None], state.base_attitude[None], state.base_position[None])
     J = J_all[0]
@@ -82,6 +89,7 @@ def generalized_jacobian(model: RobotModel, state: State) -> GJMResult:
     s = sv[0]
     determinant = float(linalg.det6(J, np.empty((6, 6)))) if n == 6 else None
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(s)) and np.isfinite(np.prod(s)))
     return GJMResult(
         J_g=J,
         base_velocity_map=base_map[0],
@@ -91,4 +99,6 @@ def generalized_jacobian(model: RobotModel, state: State) -> GJMResult:
         condition_number=cond,
         ee_position=kin.ee_position[0],
         ee_attitude=kin.ee_attitude[0],
+        success=finite,
+        message="ok" if finite else NOT_FINITE,
     )

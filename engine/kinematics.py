@@ -1,5 +1,5 @@
 """Forward kinematics of the free-floating chain: thin wrappers over the compiled kernel
-:func:`engine.kernels.chain.kinematics` (the SpaceDyn recursion, ``robot-table1.md``):
+:func:`engine.kernels.chain.kinematics` (the SpaceDyn recursion, docs/engine.md):
 ``A_i = A_{i-1} Rot(s_i, q_i)``, ``p_i = r_{i-1} + A_{i-1} b_{i-1}``, ``r_i = p_i + A_i a_i``,
 ``p_e = r_n + A_n b_n``, ``A_e = A_n C_e``.
 """

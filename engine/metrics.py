@@ -3,7 +3,8 @@
 ``B = w1 dp + w2 dp_phi + P_l``: ``dp`` is the end-effector position error (m), aggregated over
 the path (``max`` by default, ``rms`` or ``final``: the paper does not say which); ``P_l`` is
 +inf when any commanded joint speed exceeds its limit (rad/s for revolute joints, m/s for
-prismatic ones) or a joint leaves its position limits, else 0. A task that tracks the position
+prismatic ones), a joint leaves its position limits or a joint's torque (force) along the
+executed trajectory exceeds the robot's effort limit, else 0. A task that tracks the position
 only has no attitude term (its attitude is not followed). The attitude term ``dp_phi`` has
 two readings (``attitude_term``):
 
@@ -224,7 +225,7 @@ class Metrics(Generic[V]):
         f"smallest singular value of the GJM along the plan, {SINGULAR_VALUE_UNITS}; {NULL_NOT_FINITE}",
         slot=kp.MIN_SIGMA,
         api="min_singular_value",
-        web=WebRow("min singular value σ_min", "", 1.0),
+        web=WebRow("min singular value σ_min", "SI, mixed units", 1.0),
     )
     time_of_min_singular_value: V = metric(
         "s",
@@ -302,6 +303,47 @@ class Metrics(Generic[V]):
         api="base_attitude_change_final_rad",
         api_default=None,
     )
+    max_joint_torque: V = metric(
+        "N m",
+        "largest |torque| of any revolute joint along the executed trajectory (the clamped cubic spline through the "
+        "samples), N m; null if not computed (a diverged plan, or a plan stored before torques were)",
+        slot=kp.MAX_TORQUE,
+        api="max_joint_torque_n_m",
+        api_default=None,
+        web=WebRow("max joint torque", "N m", 1.0),
+    )
+    max_joint_force: V = metric(
+        "N",
+        "largest |force| of any prismatic joint along the executed trajectory, N (0 without any); null if not computed",
+        slot=kp.MAX_FORCE,
+        api="max_joint_force_n",
+        api_default=None,
+    )
+    joint_torque_limit_respected: V = metric(
+        "",
+        "every joint's torque (force) within the robot's effort limit at every sample (true without limits; null: a "
+        "plan stored before torques were checked)",
+        api="joint_torque_limit_respected",
+        api_type="bool",
+        api_default=None,
+        web=WebRow("torque limit respected", "", None),
+    )
+    torque_limit_joint: V = metric(
+        "",
+        "the first joint (1-based index) found over its torque (force) limit; null if none",
+        slot=kp.EFFORT_JOINT,
+        api="torque_limit_joint",
+        conversion="joint",
+        api_type="joint",
+        api_default=None,
+    )
+    time_torque_limit_exceeded: V = metric(
+        "s",
+        "when that joint first exceeded its limit, s; null if none",
+        slot=kp.T_EFFORT,
+        api="time_torque_limit_exceeded_s",
+        api_default=None,
+    )
     # Not in the API: the objective's settings, joint indices, divergence.
     weights: tuple[float, float] = metric("")
     aggregation: str = metric("")
@@ -310,6 +352,10 @@ class Metrics(Generic[V]):
     max_joint_speed_joint: V = metric("", slot=kp.MAX_SPEED_JOINT)  # 0-based
     max_linear_joint_speed_joint: V = metric("", slot=kp.MAX_LIN_SPEED_JOINT)  # 0-based, -1 without prismatic joints
     position_limit_excess: V = metric("rad or m", slot=kp.LIMIT_EXCESS)  # that joint's largest excess
+    max_joint_torque_joint: V = metric("", slot=kp.MAX_TORQUE_JOINT)  # 0-based, -1 without revolute joints
+    max_joint_force_joint: V = metric("", slot=kp.MAX_FORCE_JOINT)  # 0-based, -1 without prismatic joints
+    torque_limit_peak: V = metric("N m or N", slot=kp.EFFORT_PEAK)  # the largest effort of torque_limit_joint
+    dynamics_computed: V = metric("", slot=kp.DYNAMICS)  # the torques were computed (1.0) or not (0.0)
 
     @property
     def max_joint_speed_deg_s(self) -> V:
@@ -335,7 +381,16 @@ _NAMES = tuple(f.name for f in fields(Metrics))
 LAYOUT: tuple[MetricSpec, ...] = tuple(MetricSpec(f.name, **f.metadata["spec"]) for f in fields(Metrics))
 _SLOTS = tuple(s for s in LAYOUT if s.slot is not None)
 assert sorted(s.slot or 0 for s in _SLOTS) == list(range(kp.N_METRICS)), "every kernel slot is one field"
-_INDICES = frozenset({"max_joint_speed_joint", "max_linear_joint_speed_joint", "position_limit_joint"})
+_INDICES = frozenset(
+    {
+        "max_joint_speed_joint",
+        "max_linear_joint_speed_joint",
+        "position_limit_joint",
+        "max_joint_torque_joint",
+        "max_joint_force_joint",
+        "torque_limit_joint",
+    }
+)
 
 
 def check_weights(weights: Sequence[float]) -> tuple[float, float]:
@@ -369,7 +424,7 @@ class Objective:
 def objective(metrics: Metrics[Any], settings: Objective) -> FloatArray:
     """The paper's ``B`` per plan from aggregated errors: ``w1 dp + w2 dp_phi`` with the
     aggregation and attitude term of ``settings`` (``w1 dp`` alone for a position task); +inf
-    where a speed or position limit is broken or the plan is not finite."""
+    where a speed, position or effort limit is broken or the plan is not finite (``P_l``)."""
     w1, w2 = settings.weights
     position = np.asarray(getattr(metrics, f"position_error_{settings.aggregation}"), dtype=float)
     b = w1 * position
@@ -379,6 +434,7 @@ def objective(metrics: Metrics[Any], settings: Objective) -> FloatArray:
     ok = (
         np.asarray(metrics.joint_speed_limit_respected, dtype=bool)
         & np.asarray(metrics.position_limits_respected, dtype=bool)
+        & np.asarray(metrics.joint_torque_limit_respected, dtype=bool)
         & np.isfinite(b)
     )
     result: FloatArray = np.where(ok, b, np.inf)
@@ -406,6 +462,7 @@ def batch_metrics(
         finite & (cols[kp.MAX_SPEED] <= joint_speed_limit) & (cols[kp.MAX_LIN_SPEED] <= linear_joint_speed_limit)
     )
     values["position_limits_respected"] = values["position_limit_joint"] < 0
+    values["joint_torque_limit_respected"] = finite & (values["torque_limit_joint"] < 0)
     values.update(
         objective_b=np.empty(raw.shape[0]),
         joint_speed_limit=float(joint_speed_limit),

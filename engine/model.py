@@ -7,9 +7,13 @@ frame at q = 0; inertias are about each CoM in the body's own frame. SI units th
 
 Joints are revolute (``q_i`` in rad: link i turns about ``s_i``) or prismatic (``q_i`` in m: link
 i slides along ``s_i``, so its CoM is at ``a_i + s_i q_i`` from joint i), each with optional
-position limits ``lower <= q_i <= upper`` (rad or m; infinite when unlimited), which the planner
-checks. :meth:`RobotModel.from_urdf` builds a model from a URDF file and
-:meth:`RobotModel.to_urdf` writes one back (:mod:`engine.urdf`).
+position limits ``lower <= q_i <= upper`` (rad or m; infinite when unlimited) and an optional
+effort limit ``|tau_i| <= torque_limit_n_m`` (N m, revolute) or ``force_limit_n`` (N, prismatic),
+both of which the planner checks (the effort along the executed trajectory, see
+:mod:`engine.dynamics`). Every body needs a mass and a positive definite inertia: the GJM itself
+depends on them (a free-floating robot without dynamics data cannot be planned at all).
+:meth:`RobotModel.from_urdf` builds a model from a URDF file and :meth:`RobotModel.to_urdf` writes
+one back (:mod:`engine.urdf`).
 """
 
 from __future__ import annotations
@@ -23,12 +27,12 @@ from typing import Any
 
 import numpy as np
 
+from engine.bounds import MAX_EFFORT, MAX_INERTIA, MAX_JOINT_LIMIT, MAX_JOINTS, MAX_LENGTH_M, MAX_MASS_KG
 from engine.errors import ParameterError, finite_array
 from engine.kernels.chain import Chain
 from engine.spatial import FloatArray, is_rotation
 from engine.urdf import UrdfError, dict_to_urdf, urdf_element, urdf_to_dict
 
-MAX_JOINTS = 12
 JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic")
 
 
@@ -42,20 +46,25 @@ def _mass(value: Any, field: str) -> float:
         mass = float(value)
     except (TypeError, ValueError) as exc:
         raise ParameterError(field, "expected a number") from exc
-    if not math.isfinite(mass) or mass <= 0.0:
-        raise ParameterError(field, f"mass must be finite and > 0, got {value!r}")
+    if not math.isfinite(mass) or not 0.0 < mass <= MAX_MASS_KG:
+        raise ParameterError(field, f"mass must be finite, > 0 and <= {MAX_MASS_KG:g} kg, got {value!r}")
     return mass
 
 
-def _inertia(value: Any, field: str) -> FloatArray:
-    given = finite_array(value, (3, 3), field)
+def _inertia(value: Any, field: str, effort_key: str | None = None) -> FloatArray:
+    """A validated inertia tensor; ``effort_key`` names the link's effort limit, if it has one
+    (a refusal then says that the limit needs the inertia too)."""
+    given = finite_array(value, (3, 3), field, MAX_INERTIA)
     scale = max(float(np.max(np.abs(given))), 1e-300)
     if not np.allclose(given, given.T, rtol=0.0, atol=1e-9 * scale):
         raise ParameterError(field, "inertia tensor must be symmetric")
     inertia = _frozen(0.5 * (given + given.T))  # exactly the input when it is symmetric
     principal = np.linalg.eigvalsh(inertia)
     if principal[0] <= 1e-12 * scale:
-        raise ParameterError(field, "inertia tensor must be positive definite")
+        needs = "the GJM and the joint torques need every body's inertia"
+        if effort_key is not None:
+            needs = f"this link has a {effort_key} but no dynamics data: the joint torques (and the GJM) need its inertia"
+        raise ParameterError(field, f"inertia tensor must be positive definite ({needs})")
     # Physical inertia: each principal moment at most the sum of the other two.
     p1, p2, p3 = principal
     if p3 > p1 + p2 + 1e-9 * scale:
@@ -89,12 +98,37 @@ def _limits(value: Any, field: str) -> tuple[float, float]:
             number = float(raw)
         except (TypeError, ValueError) as exc:
             raise ParameterError(f"{field}.{key}", "expected a number or null") from exc
-        if not math.isfinite(number):
-            raise ParameterError(f"{field}.{key}", "must be finite (null for unlimited)")
+        if not math.isfinite(number) or abs(number) > MAX_JOINT_LIMIT:
+            raise ParameterError(f"{field}.{key}", f"must be finite and within +-{MAX_JOINT_LIMIT:g} (null for unlimited)")
         bounds.append(number)
     if not bounds[0] < bounds[1]:
         raise ParameterError(field, f"lower ({bounds[0]:g}) must be smaller than upper ({bounds[1]:g})")
     return bounds[0], bounds[1]
+
+
+#: The robot parameters' effort-limit key of each joint type: N m for a revolute joint, N for a prismatic one.
+EFFORT_KEYS = {"revolute": "torque_limit_n_m", "prismatic": "force_limit_n"}
+
+
+def _effort(data: dict[str, Any], field: str, joint_type: str) -> float:
+    """The effort limit of a link's joint (``inf``: none): ``torque_limit_n_m`` for a revolute
+    joint, ``force_limit_n`` for a prismatic one, finite and > 0 (null or left out: no limit)."""
+    key = EFFORT_KEYS[joint_type]
+    for other_type, other in EFFORT_KEYS.items():
+        if other != key and data.get(other) is not None:
+            raise ParameterError(f"{field}.{other}", f"a {joint_type} joint's effort limit is {key}, not {other} ({other_type})")
+    raw = data.get(key)
+    if raw is None:
+        return math.inf
+    try:
+        limit = float(raw)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{field}.{key}", "expected a number or null") from exc
+    if not (math.isfinite(limit) and 0.0 < limit <= MAX_EFFORT):
+        raise ParameterError(
+            f"{field}.{key}", f"must be finite, > 0 and <= {MAX_EFFORT:g} (null or left out: no limit), got {raw!r}"
+        )
+    return limit
 
 
 @dataclass(frozen=True)
@@ -112,6 +146,7 @@ class Link:
     joint_name: str = ""  # the URDF joint name ("" for the default "joint<i>")
     lower: float = -math.inf  # position limits, rad (revolute) or m (prismatic)
     upper: float = math.inf
+    effort_limit: float = math.inf  # |torque| N m (revolute) or |force| N (prismatic); inf: none
 
     @property
     def prismatic(self) -> bool:
@@ -177,6 +212,16 @@ class RobotModel:
         """``(n,)`` rad or m, ``+inf`` where unlimited."""
         return _frozen(np.array([link.upper for link in self.links], dtype=float))
 
+    @cached_property
+    def effort_limits(self) -> FloatArray:
+        """``(n,)`` N m (revolute) or N (prismatic), ``+inf`` where unlimited."""
+        return _frozen(np.array([link.effort_limit for link in self.links], dtype=float))
+
+    @cached_property
+    def effort_limited(self) -> bool:
+        """Whether any joint has a torque (force) limit: then every plan's torques are checked."""
+        return bool(np.any(np.isfinite(self.effort_limits)))
+
     @property
     def total_mass(self) -> float:
         return self.base.mass + sum(link.mass for link in self.links)
@@ -219,12 +264,16 @@ class RobotModel:
             b=np.array(self.b_vectors),
             C_e=np.array(self.C_e, dtype=float),
             total_mass=float(self.masses.sum()),
-            joints=np.stack([np.where(self.prismatic, 1.0, 0.0), self.lower_limits, self.upper_limits], axis=1),
+            joints=np.stack(
+                [np.where(self.prismatic, 1.0, 0.0), self.lower_limits, self.upper_limits, self.effort_limits], axis=1
+            ),
         )
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RobotModel:
-        """Build and validate a model from the schema of ``robot-table1.yaml``.
+        """Build and validate a model from the schema of ``engine/data/table1_robot.json``: every
+        number finite and within :mod:`engine.bounds`, masses > 0, inertias symmetric positive
+        definite and physical, joint axes non-zero, ``C_e`` a rotation.
 
         Raises ``ValueError`` naming the offending field (e.g. ``links[2].inertia``).
         """
@@ -242,7 +291,7 @@ class RobotModel:
         base = Base(
             mass=_mass(base_data.get("mass"), "base.mass"),
             inertia=_inertia(base_data.get("inertia"), "base.inertia"),
-            b=finite_array(base_data.get("b"), (3,), "base.b"),
+            b=finite_array(base_data.get("b"), (3,), "base.b", MAX_LENGTH_M),
             name=base_name,
         )
         links_data = data.get("links")
@@ -263,18 +312,22 @@ class RobotModel:
             if not isinstance(joint_name, str):
                 raise ParameterError(f"{field}.joint_name", "expected a string")
             lower, upper = _limits(ld.get("limits"), f"{field}.limits")
+            effort = _effort(ld, field, joint_type)
             links.append(
                 Link(
                     name=link_name,
                     mass=_mass(ld.get("mass"), f"{field}.mass"),
                     joint_axis=_axis(ld.get("joint_axis"), f"{field}.joint_axis"),
-                    a=finite_array(ld.get("a"), (3,), f"{field}.a"),
-                    b=finite_array(ld.get("b"), (3,), f"{field}.b"),
-                    inertia=_inertia(ld.get("inertia"), f"{field}.inertia"),
+                    a=finite_array(ld.get("a"), (3,), f"{field}.a", MAX_LENGTH_M),
+                    b=finite_array(ld.get("b"), (3,), f"{field}.b", MAX_LENGTH_M),
+                    inertia=_inertia(
+                        ld.get("inertia"), f"{field}.inertia", EFFORT_KEYS[joint_type] if math.isfinite(effort) else None
+                    ),
                     joint_type=joint_type,
                     joint_name=joint_name,
                     lower=lower,
                     upper=upper,
+                    effort_limit=effort,
                 )
             )
         ee = data.get("end_effector", {"C_e": np.eye(3).tolist()})
@@ -312,6 +365,8 @@ class RobotModel:
                     "lower": link.lower if math.isfinite(link.lower) else None,
                     "upper": link.upper if math.isfinite(link.upper) else None,
                 }
+            if math.isfinite(link.effort_limit):
+                entry[EFFORT_KEYS[link.joint_type]] = link.effort_limit
             links.append(entry)
         end_effector: dict[str, Any] = {"C_e": self.C_e.tolist()}
         if self.end_effector_name != "end_effector":
@@ -336,7 +391,7 @@ class RobotModel:
         try:
             return cls.from_dict(params)
         except ParameterError as exc:  # the URDF checks come first; this names the URDF element anyway
-            raise UrdfError(urdf_element(params, exc.field), exc.reason) from None
+            raise UrdfError(urdf_element(params, exc.field), f"{exc.field}: {exc.reason}") from None
 
     def to_urdf(self) -> str:
         """This model as URDF text that :meth:`from_urdf` and Pinocchio read back to the same
@@ -345,7 +400,7 @@ class RobotModel:
 
 
 def table1_robot() -> RobotModel:
-    """The 6-DOF robot of the paper's Table 1 with the frames of ``robot-table1.md``."""
+    """The 6-DOF robot of the paper's Table 1 with the frames of ``engine/data/table1_robot.json``."""
     text = resources.files("engine").joinpath("data/table1_robot.json").read_text()
     return RobotModel.from_dict(json.loads(text))
 

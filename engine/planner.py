@@ -13,6 +13,13 @@ parameter sets over threads (the kernels release the GIL).
 A task tracks the pose (6 rows of the GJM) or the position only (3 rows); a redundant arm (more
 joints than that) may add a secondary objective in the null space (:mod:`engine.redundancy`).
 A plan fails, with a message, when a joint leaves its position limits.
+
+Every kept plan carries the dynamics of its executed trajectory (the clamped cubic spline
+through its joint samples, :mod:`engine.executed`): joint accelerations, joint torques (forces
+for prismatic joints) and the wrench the arm exerts on the carrier, computed in the compiled
+step loop after the last step. Metrics-only evaluations compute the torque peaks only when the
+robot has an effort limit (:attr:`engine.model.RobotModel.effort_limited`); a plan over a limit
+fails, and its ``B`` is infinite.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import numpy as np
 
 from engine.errors import ParameterError
 from engine.inverses import Inverse, kernel_param_rows, make_inverse, method_spec
+from engine.kernels import dynamics as dynamics_kernels
 from engine.kernels import plan as plan_kernels
 from engine.kernels import redundancy as redundancy_kernels
 from engine.metrics import Column, Metrics, Objective, batch_metrics
@@ -72,6 +80,11 @@ def _pool(threads: int) -> ThreadPoolExecutor:
 def _joint_value(model: RobotModel, j: int, value: float) -> str:
     """A joint position for messages: deg for a revolute joint, m for a prismatic one."""
     return f"{value:.4g} m" if model.links[j].prismatic else f"{math.degrees(value):.4g} deg"
+
+
+def _effort_value(model: RobotModel, j: int, value: float) -> str:
+    """A joint effort for messages: N m for a revolute joint, N for a prismatic one."""
+    return f"{value:.4g} N" if model.links[j].prismatic else f"{value:.4g} N m"
 
 
 def check_task(model: RobotModel, task: CartesianTask) -> None:
@@ -191,6 +204,12 @@ class PlanSetup:
         return setup
 
     @cached_property
+    def speed_limits(self) -> FloatArray:
+        """``(n,)`` each joint's speed limit: rad/s for revolute joints, m/s for prismatic ones."""
+        task = self.task
+        return np.where(self.model.prismatic, task.linear_joint_speed_limit, task.joint_speed_limit).astype(float)
+
+    @cached_property
     def _args(self) -> tuple[Any, ...]:
         task, secondary = self.task, self.options.secondary
         samples = task.samples
@@ -208,13 +227,16 @@ class PlanSetup:
             int(secondary.objective_id if secondary is not None else redundancy_kernels.NONE),
             float(secondary.gain if secondary is not None else 0.0),
             joint_centres(self.model, q0) if secondary is not None else q0,  # only the joint centering reads it
+            self.speed_limits,
         )
 
-    def kernel_args(self, inverse: Inverse, params: FloatArray) -> tuple[object, ...]:
+    def kernel_args(self, inverse: Inverse, params: FloatArray, *, record: bool = False) -> tuple[object, ...]:
         """The leading arguments of the planner kernels (always of the same types, so each kernel
-        is compiled once) for ``inverse`` with the parameter rows ``params``."""
+        is compiled once) for ``inverse`` with the parameter rows ``params``; the dynamics are
+        computed for a kept plan (``record``) and, for metrics only, when the robot has an
+        effort limit."""
         head, tail = self._args
-        return (*head, int(inverse.method_id), params, *tail)
+        return (*head, int(inverse.method_id), params, *tail, bool(record or self.model.effort_limited))
 
     def metrics(self, raw: FloatArray) -> Metrics[Column]:
         """The metrics of the kernel's rows ``raw (B, N_METRICS)`` of plans of this setup."""
@@ -242,6 +264,20 @@ def _trace_arrays(n_samples: int, n: int, rows: int) -> tuple[FloatArray, ...]:
         np.empty((n_samples, m)),
         np.empty(n_samples),
         np.empty(n_samples),
+    )
+
+
+def _effort_problem(metrics: Metrics[float], model: RobotModel | None) -> str:
+    """The verdict's words for a plan over an effort limit: the joint, its largest torque
+    (force) against its limit, and when it first went over."""
+    j = int(metrics.torque_limit_joint)
+    if model is None:
+        return f"joint torque limit broken: joint {j + 1} first over its limit at t = {metrics.time_torque_limit_exceeded:g} s"
+    what = "force" if model.links[j].prismatic else "torque"
+    return (
+        f"joint {what} limit broken: joint {j + 1} ({model.joint_names[j]}) needs up to "
+        f"{_effort_value(model, j, metrics.torque_limit_peak)} (limit {_effort_value(model, j, model.effort_limits[j])}), "
+        f"first over it at t = {metrics.time_torque_limit_exceeded:g} s"
     )
 
 
@@ -299,6 +335,8 @@ def _verdict(metrics: Metrics[float], options: PlanOptions, model: RobotModel | 
             else:
                 where += f" left its position limits at t = {metrics.time_position_limit_left:g} s"
             problems.append(where)
+        if not metrics.joint_torque_limit_respected:
+            problems.append(_effort_problem(metrics, model))
     if problems:
         return False, "; ".join(problems)
     return True, "ok"
@@ -315,15 +353,24 @@ def _where(
     speed_limits: tuple[float, float],
     position_tolerance: float,
     attitude_tolerance: float,
+    efforts: FloatArray | None = None,
+    effort_limits: FloatArray | None = None,
 ) -> str:
     """Where a failed plan first went wrong: the first sample that is not finite, off the path
-    by more than the tolerances (``attitude_tolerance`` inf for a position task) or over a
-    joint's speed limit (``speed_limits``: rad/s for revolute, m/s for ``prismatic (n,)``
-    joints), with the desired pose there."""
+    by more than the tolerances (``attitude_tolerance`` inf for a position task), over a joint's
+    speed limit (``speed_limits``: rad/s for revolute, m/s for ``prismatic (n,)`` joints) or,
+    given ``efforts (N+1, n)``, over a joint's ``effort_limits (n,)``, with the desired pose
+    there."""
     limits = np.where(prismatic, speed_limits[1], speed_limits[0])
     over = np.abs(qd) / limits
     worst = np.max(over, axis=1)
-    bad = ~((position_error <= position_tolerance) & (attitude_error <= attitude_tolerance) & (worst <= 1.0))
+    if efforts is not None and effort_limits is not None:
+        heavy = np.where(np.isfinite(effort_limits), np.abs(efforts) / effort_limits, 0.0)
+        heavy = np.where(np.isnan(heavy), 0.0, heavy)  # a diverged plan's rows: its stop is reported
+    else:
+        heavy = np.zeros_like(over)
+    strained = np.max(heavy, axis=1)
+    bad = ~((position_error <= position_tolerance) & (attitude_error <= attitude_tolerance) & (worst <= 1.0) & (strained <= 1.0))
     if not np.any(bad):
         return ""
     k = int(np.argmax(bad))
@@ -333,6 +380,10 @@ def _where(
         j = int(np.argmax(over[k]))
         speed = f"{abs(qd[k, j]):.4g} m/s" if prismatic[j] else f"{math.degrees(abs(qd[k, j])):.4g} deg/s"
         what = f"joint {j + 1} reached {speed}"
+    elif efforts is not None and strained[k] > 1.0:
+        j = int(np.argmax(heavy[k]))
+        effort = f"{abs(efforts[k, j]):.4g} N" if prismatic[j] else f"{abs(efforts[k, j]):.4g} N m"
+        what = f"joint {j + 1} needed {effort}"
     else:
         what = f"the errors reached {position_error[k]:.4g} m and {math.degrees(attitude_error[k]):.3g} deg"
     position = ", ".join(f"{x:.4g}" for x in p_des[k])
@@ -349,7 +400,10 @@ class PlanResult:
 
     ``qd[k]`` is the joint rate commanded over ``[t_k, t_{k+1}]`` (the last one is the rate
     commanded at the end, zero without feedback). ``damping`` is the effective damping per
-    singular direction (see :mod:`engine.inverses`). After a divergence the samples are NaN.
+    singular direction (see :mod:`engine.inverses`). The dynamics are those of the executed
+    trajectory (:mod:`engine.executed`: the clamped cubic spline through ``q``, from rest to the
+    last commanded rate) at the samples; a plan that diverged has none (NaN). After a
+    divergence the samples are NaN.
     """
 
     inverse: Inverse
@@ -369,6 +423,10 @@ class PlanResult:
     singular_values: FloatArray  # (N+1, m) descending
     det_J_g: FloatArray  # (N+1,) nan unless the GJM is square
     damping: FloatArray  # (N+1, m)
+    joint_accelerations: FloatArray  # (N+1, n) rad/s^2 (m/s^2 for prismatic joints), executed trajectory
+    joint_torques: FloatArray  # (N+1, n) N m (N for prismatic joints)
+    mount_force: FloatArray  # (N+1, 3) N, exerted by the arm on the carrier, carrier frame
+    mount_torque: FloatArray  # (N+1, 3) N m, about joint 1's origin, carrier frame
     metrics: Metrics[float]
     success: bool
     message: str
@@ -406,9 +464,13 @@ def run_plan(setup: PlanSetup, inverse: Inverse) -> PlanResult:
     """The plan of a checked setup (see :func:`plan`), every sample kept."""
     model, task, options = setup.model, setup.task, setup.options
     samples = task.samples
-    trace = _trace_arrays(samples.t.shape[0], model.n_joints, TRACKS[task.tracks])
+    count = samples.t.shape[0]
+    trace = _trace_arrays(count, model.n_joints, TRACKS[task.tracks])
+    t_spline, _, qd_spline, qdd, tau, force, torque = dynamics_kernels.trajectory_buffers(count, model.n_joints, count)
+    dyn = (t_spline, trace[0], qd_spline, qdd, tau, force, torque)  # the spline runs through the trace's samples
     raw = np.empty((1, plan_kernels.N_METRICS))
-    plan_kernels.simulate(*setup.kernel_args(inverse, kernel_param_rows(inverse, 1)[0]), True, trace, raw[0])
+    args = setup.kernel_args(inverse, kernel_param_rows(inverse, 1)[0], record=True)
+    plan_kernels.simulate(*args, True, trace, dyn, raw[0])
     metrics = setup.metrics(raw).item(0)
     success, message = _verdict(metrics, options, model)
     q, qd, base_p, base_A, ee_p, ee_A, sv, det, damping, pos_err, att_err = trace
@@ -424,6 +486,8 @@ def run_plan(setup: PlanSetup, inverse: Inverse) -> PlanResult:
             (task.joint_speed_limit, task.linear_joint_speed_limit),
             options.position_tolerance,
             options.attitude_tolerance if task.tracks == "pose" else math.inf,
+            tau,
+            model.effort_limits,
         )
         message = f"{message}; {where}" if where else message
     return PlanResult(
@@ -444,6 +508,10 @@ def run_plan(setup: PlanSetup, inverse: Inverse) -> PlanResult:
         singular_values=sv,
         det_J_g=det,
         damping=damping,
+        joint_accelerations=qdd,
+        joint_torques=tau,
+        mount_force=force,
+        mount_torque=torque,
         metrics=metrics,
         success=success,
         message=message,

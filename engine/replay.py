@@ -22,7 +22,8 @@ from engine.spatial import FloatArray, matrix_to_quaternion, rotation_angle
 RTOL = 1e-11
 ATOL = 1e-13
 
-_FAILURES = {
+#: Why a compiled integration stopped, by its status (for messages; :mod:`engine.executed` too).
+FAILURES = {
     replay_kernels.STEP_TOO_SMALL: "the step size fell below the resolution of the time axis",
     replay_kernels.TOO_MANY_STEPS: f"more than {replay_kernels.MAX_STEPS_PER_INTERVAL} integration steps in one plan step",
     replay_kernels.SINGULAR: "the base inertia matrix H_b is singular",
@@ -53,7 +54,8 @@ class ReplayResult:
     message: str
 
 
-def _failed(t: FloatArray, message: str, nfev: int = 0) -> ReplayResult:
+def failed_result(t: FloatArray, message: str, nfev: int = 0) -> ReplayResult:
+    """A replay that could not run (``message`` says why): every sample and check NaN."""
     nan = float("nan")
     n_samples = t.shape[0]
     vectors = np.full((n_samples, 3), nan)
@@ -78,14 +80,14 @@ def replay(model: RobotModel, plan_result: PlanResult, *, rtol: float = RTOL, at
     q = np.ascontiguousarray(plan_result.q, dtype=float)
     qd = np.ascontiguousarray(plan_result.qd, dtype=float)
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
-        return _failed(t, "the plan is not finite, nothing to replay")
+        return failed_result(t, "the plan is not finite, nothing to replay")
     n_samples = t.shape[0]
     ys = np.empty((n_samples, 7))
     ys[0, :3] = plan_result.base_position[0]
     ys[0, 3:] = matrix_to_quaternion(plan_result.base_attitude[0])
     status, failed_step, nfev = replay_kernels.integrate(model.chain, t, q, qd, ys, float(rtol), float(atol))
     if status != replay_kernels.OK:
-        return _failed(t, f"replay integration failed at t = {t[failed_step]:g} s: {_FAILURES[status]}", int(nfev))
+        return failed_result(t, f"replay integration failed at t = {t[failed_step]:g} s: {FAILURES[status]}", int(nfev))
 
     ee_p = np.empty((n_samples, 3))
     ee_A = np.empty((n_samples, 3, 3))

@@ -3,10 +3,14 @@
 Reading (:func:`urdf_to_dict`, behind :meth:`engine.model.RobotModel.from_urdf`):
 
 1. The text is parsed by ``defusedxml`` first (at most :data:`MAX_URDF_BYTES`, no DTD, so no
-   entity expansion and no external entities; at most :data:`MAX_DEPTH` levels). Every element
-   the model needs (robot, links with their ``inertial``, joints with ``parent``, ``child``,
-   ``origin``, ``axis``, ``limit``) is checked there, so each refusal names its element. Geometry,
-   materials, transmissions and the like are not used and are left out.
+   entity expansion and no external entities; at most :data:`MAX_DEPTH` levels). The links and
+   joints are counted before anything else (at most :data:`engine.bounds.MAX_URDF_LINKS` of each,
+   at most :data:`engine.bounds.MAX_JOINTS` moving joints), so the work that follows is bounded,
+   and every step after is linear in the document. Every element the model needs (robot, links
+   with their ``inertial``, joints with ``parent``, ``child``, ``origin``, ``axis``, ``limit``) is
+   checked there, so each refusal names its element; numbers are written as XML Schema doubles
+   (no ``1_000``, no ``inf``). Geometry, materials, transmissions and the like are not used and
+   are left out.
 2. The checked elements are read by `yourdfpy <https://github.com/clemense/yourdfpy>`_ (origins
    as 4x4 transforms, URDF's fixed-axis roll-pitch-yaw), whose object model also writes the
    export.
@@ -20,21 +24,31 @@ Reading (:func:`urdf_to_dict`, behind :meth:`engine.model.RobotModel.from_urdf`)
    frame turned by ``U_i`` at q = 0 gives ``s_i = U_i axis_i``, ``a_i = U_i c_i``,
    ``I_i = U_i I U_i^T``), see :mod:`engine.model`.
 
+The parameter set this gives is not range-checked here: its numbers (which may overflow to
+infinity when huge ones are combined) are checked by whoever builds the model from it, with the
+same bounds and messages as any parameter set (:meth:`engine.model.RobotModel.from_dict`, and the
+API's robot schema in ``service.schemas.robots``).
+
 Position limits: a ``revolute`` or ``prismatic`` joint keeps ``lower``/``upper`` of its
 ``<limit>``; a revolute joint without ``<limit>`` (common in the wild), a ``continuous`` joint,
 or a missing ``lower``/``upper`` attribute is unlimited on that side (URDF's default of 0 would
-lock the joint). ``effort`` and ``velocity`` are not used: joint speed limits belong to the task.
+lock the joint). A positive ``effort`` is the joint's torque limit (N m, ``torque_limit_n_m``) or
+force limit (N, prismatic, ``force_limit_n``), on continuous joints too; ``effort="0"`` (URDF's
+placeholder, what exports write when it is unknown) or none means no limit, a negative one is
+refused. ``velocity`` is not used: joint speed limits belong to the task.
 
 Writing (:func:`dict_to_urdf`): one URDF link per body with its frame at the joint, parallel to
 the base at q = 0 (so every joint origin is a pure translation), the CoM as the ``inertial``
 origin, and the end effector as a massless link on a fixed joint. Unlimited revolute joints are
-``continuous``; ``effort`` and ``velocity`` are written as 0 (unknown).
+``continuous``; ``effort`` is the torque (force) limit, 0 where there is none, and ``velocity``
+is written as 0 (unknown).
 """
 
 from __future__ import annotations
 
 import io
 import math
+import re
 import xml.etree.ElementTree as ET
 from collections import deque
 from typing import Any
@@ -43,6 +57,7 @@ import numpy as np
 from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as SafeET
 
+from engine.bounds import MAX_JOINTS, MAX_URDF_LINKS
 from engine.errors import ParameterError
 from engine.spatial import FloatArray, is_rotation
 
@@ -51,6 +66,8 @@ MAX_DEPTH = 32
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
 REFUSED_TYPES = ("floating", "planar")
 INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+#: A number as XML Schema writes a double (what URDF parsers read): no ``1_000``, ``inf`` or ``nan``.
+NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
 
 class UrdfError(ParameterError):
@@ -108,10 +125,9 @@ def _numbers(element: ET.Element | None, attr: str, count: int, where: str, *, r
         return None
     parts = raw.split()
     hint = " (xacro expressions must be expanded first)" if "${" in raw or "$(" in raw else ""
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        raise UrdfError(where, f"{label}: {raw!r} is not {count} number(s){hint}") from None
+    if not all(NUMBER.fullmatch(p) for p in parts):
+        raise UrdfError(where, f"{label}: {raw!r} is not {count} number(s){hint}")
+    values = [float(p) for p in parts]
     if len(values) != count or not all(math.isfinite(v) for v in values):
         raise UrdfError(where, f"{label}: {raw!r} is not {count} finite number(s){hint}")
     return values
@@ -133,15 +149,30 @@ def _name(element: ET.Element, kind: str, seen: set[str]) -> str:
     return name
 
 
+def _count(links: list[ET.Element], joints: list[ET.Element]) -> None:
+    """Refuse a document with more links, joints or moving joints than a model may have, before
+    any of them is read."""
+    if not links:
+        raise UrdfError("<robot>", "the URDF has no <link>: a robot needs at least its base link and one moving link")
+    for kind, elements in (("link", links), ("joint", joints)):
+        if len(elements) > MAX_URDF_LINKS:
+            raise UrdfError("<robot>", f"the URDF has {len(elements)} <{kind}> elements, at most {MAX_URDF_LINKS}")
+    moving = sum(joint.get("type") in MOVING_TYPES for joint in joints)
+    if moving > MAX_JOINTS:
+        raise UrdfError("<robot>", f"the URDF has {moving} moving joints (revolute, continuous, prismatic), at most {MAX_JOINTS}")
+
+
 def _checked_copy(root: ET.Element) -> ET.Element:
     """Check what the model uses and return a copy with only those elements (geometry,
     materials, transmissions, dynamics and the like are not read)."""
     robot_name = root.get("name")
     if not robot_name:
         raise UrdfError("<robot>", "the <robot> needs a name attribute")
+    links, joints = root.findall("link"), root.findall("joint")
+    _count(links, joints)
     out = ET.Element("robot", {"name": robot_name})
     link_names: set[str] = set()
-    for link in root.findall("link"):
+    for link in links:
         name = _name(link, "link", link_names)
         where = _link(name)
         kept = ET.SubElement(out, "link", {"name": name})
@@ -162,7 +193,7 @@ def _checked_copy(root: ET.Element) -> ET.Element:
             _numbers(inertia, key, 1, where, required=True)
         kept.append(_strip(inertial, ("origin", "mass", "inertia")))
     joint_names: set[str] = set()
-    for joint in root.findall("joint"):
+    for joint in joints:
         name = _name(joint, "joint", joint_names)
         where = _joint(name)
         kind = joint.get("type")
@@ -198,9 +229,9 @@ def _strip(element: ET.Element, keep: tuple[str, ...]) -> ET.Element:
 
 def _read(text: str | bytes) -> Any:
     """The checked URDF as a ``yourdfpy.Robot`` (no meshes, no scene graph)."""
+    checked = ET.tostring(_checked_copy(_parse_safely(text)), encoding="utf-8")
     import yourdfpy  # imported on first use: it brings trimesh along (about a second)
 
-    checked = ET.tostring(_checked_copy(_parse_safely(text)), encoding="utf-8")
     try:
         urdf = yourdfpy.URDF.load(
             io.BytesIO(checked), build_scene_graph=False, load_meshes=False, build_collision_scene_graph=False
@@ -250,13 +281,17 @@ def _body_inertia(links: list[tuple[Any, FloatArray]], where: str, moving: bool)
 
 
 def _check_physical(inertia: FloatArray, where: str) -> None:
+    """A link's own inertia (finite numbers): principal moments >= 0 and each at most the sum of
+    the others. Computed on the tensor scaled to unit size, so huge numbers do not overflow."""
     scale = max(float(np.max(np.abs(inertia))), 1e-300)
-    principal = np.linalg.eigvalsh(inertia)
-    if principal[0] < -1e-9 * scale:
-        raise UrdfError(where, f"non-physical inertia: principal moments {principal.tolist()} must be >= 0")
+    principal = np.linalg.eigvalsh(inertia / scale)
+    if principal[0] < -1e-9:
+        raise UrdfError(where, f"non-physical inertia: principal moments {(principal * scale).tolist()} must be >= 0")
     p1, p2, p3 = principal
-    if p3 > p1 + p2 + 1e-9 * scale:
-        raise UrdfError(where, f"non-physical inertia: principal moments {principal.tolist()} violate the triangle inequality")
+    if p3 > p1 + p2 + 1e-9:
+        raise UrdfError(
+            where, f"non-physical inertia: principal moments {(principal * scale).tolist()} violate the triangle inequality"
+        )
 
 
 def _limits(joint: Any) -> dict[str, float | None] | None:
@@ -270,6 +305,16 @@ def _limits(joint: Any) -> dict[str, float | None] | None:
     return {"lower": lower, "upper": upper}
 
 
+def _effort(joint: Any) -> float | None:
+    """A joint's ``<limit effort>`` as its effort limit (None: no limit, including URDF's 0)."""
+    effort = joint.limit.effort if joint.limit is not None else None
+    if effort is None or effort == 0.0:
+        return None
+    if effort < 0.0:
+        raise UrdfError(_joint(joint.name), f"<limit effort>: {effort:g} is negative (an effort limit is > 0, or 0 for none)")
+    return float(effort)
+
+
 def urdf_to_dict(
     text: str | bytes,
     *,
@@ -279,8 +324,13 @@ def urdf_to_dict(
 ) -> dict[str, Any]:
     """The model parameters (the schema of :meth:`engine.model.RobotModel.from_dict`) of a URDF
     serial arm on a floating base; see the module docstring. ``tool_offset = (position (3,) m,
-    rotation (3, 3))`` is the end-effector frame in ``end_effector_link``'s frame."""
-    robot = _read(text)
+    rotation (3, 3))`` is the end-effector frame in ``end_effector_link``'s frame. Huge numbers
+    may give infinite parameters, which building the model refuses."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _to_dict(_read(text), end_effector_link, tool_offset, name)
+
+
+def _to_dict(robot: Any, end_effector_link: str | None, tool_offset: tuple[Any, Any] | None, name: str | None) -> dict[str, Any]:
     links = {link.name: link for link in robot.links}
     parent_joint: dict[str, Any] = {}
     children: dict[str, list[Any]] = {}
@@ -298,11 +348,14 @@ def urdf_to_dict(
         raise UrdfError("<robot>", f"the URDF must be one tree with one root link (the floating base); it has {what}")
     root = roots[0]
 
-    # Bodies: each link's body (the link at its top) and its pose in the body frame at q = 0.
+    # Bodies: each link's body (the link at its top) and its pose in the body frame at q = 0;
+    # the links of each body, and the moving joints below each body, in one pass.
     body_of: dict[str, str] = {root: root}
     pose: dict[str, FloatArray] = {root: np.eye(4)}
+    links_of: dict[str, list[str]] = {root: [root]}
+    moving_below: dict[str, list[Any]] = {}
     order = deque([root])
-    reached = [root]
+    reached = 1
     while order:
         parent = order.popleft()
         for joint in children.get(parent, []):
@@ -310,13 +363,16 @@ def urdf_to_dict(
             if joint.type == "fixed":
                 body_of[child] = body_of[parent]
                 pose[child] = pose[parent] @ _transform(joint.origin)
+                links_of[body_of[child]].append(child)
             else:
                 body_of[child] = child
                 pose[child] = np.eye(4)
+                links_of[child] = [child]
+                moving_below.setdefault(body_of[parent], []).append(joint)
             order.append(child)
-            reached.append(child)
-    if len(reached) != len(links):
-        missing = sorted(set(links) - set(reached))
+            reached += 1
+    if reached != len(links):
+        missing = sorted(set(links) - set(body_of))
         raise UrdfError(_link(missing[0]), "is not connected to the root link (the joints form a loop)")
 
     moving = [j for j in robot.joints if j.type in MOVING_TYPES]
@@ -343,7 +399,7 @@ def urdf_to_dict(
         chain = []
         body = root
         while True:
-            below = [j for j in moving if body_of[j.parent] == body]
+            below = moving_below.get(body, [])
             if len(below) > 1:
                 raise UrdfError(
                     _joint(below[1].name),
@@ -354,7 +410,7 @@ def urdf_to_dict(
                 break
             chain.append(below[0])
             body = below[0].child
-        leaves = [link for link in links if body_of[link] == body and not children.get(link)]
+        leaves = [link for link in links_of[body] if not children.get(link)]
         if len(leaves) != 1:
             raise UrdfError(
                 _link(body),
@@ -366,8 +422,7 @@ def urdf_to_dict(
 
     # Bodies' inertial properties in their frames, then the model's frames (parallel at q = 0).
     def members(top: str) -> list[tuple[Any, FloatArray]]:
-        first = [(links[top], pose[top])]
-        return first + [(links[k], pose[k]) for k in reached if body_of[k] == top and k != top]
+        return [(links[k], pose[k]) for k in links_of[top]]  # the body's own link first
 
     base_mass, base_com, base_inertia = _body_inertia(members(root), _link(root), moving=False)
     U = np.eye(3)
@@ -397,6 +452,9 @@ def urdf_to_dict(
         limits = _limits(joint)
         if limits is not None:
             entry["limits"] = limits
+        effort = _effort(joint)
+        if effort is not None:
+            entry["force_limit_n" if joint.type == "prismatic" else "torque_limit_n_m"] = effort
         params_links.append(entry)
         prev_com = com
     T_ee = pose[ee_name]
@@ -481,10 +539,13 @@ def dict_to_urdf(params: dict[str, Any]) -> str:
         limits = link.get("limits") or {}
         lower, upper = limits.get("lower"), limits.get("upper")
         kind = link.get("joint_type", "revolute")
+        effort = link.get("force_limit_n" if kind == "prismatic" else "torque_limit_n_m")
+        effort = 0.0 if effort is None else float(effort)
         if kind == "revolute" and lower is None and upper is None:
-            kind, limit = "continuous", None
+            kind = "continuous"  # a continuous joint's <limit> carries its effort only
+            limit = yourdfpy.Limit(effort=effort, velocity=0.0) if effort > 0.0 else None
         else:
-            limit = yourdfpy.Limit(effort=0.0, velocity=0.0, lower=lower, upper=upper)
+            limit = yourdfpy.Limit(effort=effort, velocity=0.0, lower=lower, upper=upper)
         robot.links.append(
             yourdfpy.Link(
                 name=child,

@@ -21,9 +21,11 @@ from service import errors, openapi
 from service.infra import observability, security
 from service.infra.admission import Admission
 from service.infra.db import Database
+from service.infra.ratelimit import AddressLimiter
 from service.infra.retention import Sweeper
 from service.infra.settings import Settings
 from service.routers import docs, figures, health, job_events, landscapes, metrics, plans, robots, shortest, tasks, tuning, web
+from service.usecases.job_events import JobFeeds
 from service.usecases.plans import rehearse
 from service.usecases.robots import seed_presets
 
@@ -40,7 +42,10 @@ Singularity-robust Cartesian path planning for free-floating space robots.
 """
 
 TAGS = [
-    {"name": "robots", "description": "Robots: parameter sets (schema of robot-table1.yaml) or URDF files, their URDF, the GJM"},
+    {
+        "name": "robots",
+        "description": "Robots: parameter sets (the schema of engine/data/table1_robot.json) or URDF files, their URDF, the GJM",
+    },
     {"name": "tasks", "description": "Task presets; `paper-line` is the paper's detection line"},
     {"name": "plans", "description": "Synchronous Cartesian plans with a robust inverse"},
     {"name": "tuning", "description": "Asynchronous GA tuning jobs of the damping parameters, with live events"},
@@ -107,7 +112,7 @@ class Kernels:
         keys = self.settings.keys()
         headers = {"authorization": f"Bearer {keys[0]}"} if keys else {}
         transport = httpx.ASGITransport(app=self.app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://warm-up", headers=headers) as client:
+        async with httpx.AsyncClient(transport=transport, base_url="http://localhost", headers=headers) as client:
             for path in WARM_UP_PATHS:
                 await client.get(path)
 
@@ -143,6 +148,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         slots = settings.plan_slots()
         app.state.plan_admission = Admission("plans", slots, settings.plan_queue, settings.plan_queue_timeout_s)
         app.state.figure_admission = Admission("figure renders", slots, 4 * slots, settings.plan_queue_timeout_s)
+        app.state.job_feeds = JobFeeds(db, job_events.POLL_S, settings.max_event_streams)
+        app.state.login_limiter = AddressLimiter("login", settings.login_attempts_per_minute)
         app.state.kernels = Kernels(app, db, settings)
         app.state.kernels.start()
         with contextlib.suppress(Exception):  # not migrated yet: /readyz says so

@@ -1,4 +1,4 @@
-"""``spacearm migrate | serve | worker | run`` (``spacearm --help`` lists every option and the
+"""``spacearm migrate | serve | worker | run | plan`` (``spacearm --help`` lists every option and the
 ``SPACEARM_*`` environment variables)."""
 
 from __future__ import annotations
@@ -119,6 +119,25 @@ def build_parser() -> argparse.ArgumentParser:
         default=600.0,
         help="seconds to wait for /readyz before giving up (default: 600; the first run compiles the kernels, about a minute)",
     )
+
+    p = sub.add_parser(
+        "plan",
+        parents=[logs],
+        help="plan a task from a JSON file, without a server, and print its metrics",
+        description="Plan the request in FILE (the body of POST /v1/plans: robot_id, a preset here, or an inline "
+        "robot; task; method; options) in this process, without a server or a database, and print the verdict and "
+        "the metrics table. Exit status: 0 the plan succeeded, 1 it failed (infeasible: the message says where), "
+        "2 the request is invalid.",
+    )
+    p.add_argument("file", help="the plan request, JSON ('-': standard input; no default)")
+    p.add_argument(
+        "--trajectory",
+        metavar="OUT",
+        default=None,
+        help="also write the trajectory to OUT, in the format of its extension: .csv, .mat, .npz, .json or .ros.json "
+        "(default: none)",
+    )
+    p.add_argument("--json", action="store_true", help="print the plan's JSON summary instead of the table (default: off)")
     return parser
 
 
@@ -157,22 +176,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "migrate":
         return migrate(settings, args.revision, say)
     if args.command == "serve":
-        import uvicorn
-
         from service.app import create_app
+        from service.infra.server import serve
 
-        host = args.host or settings.host
-        if not settings.keys() and host not in LOCAL_HOSTS:
+        settings = settings.model_copy(update={"host": args.host or settings.host, "port": args.port or settings.port})
+        if not settings.keys() and settings.host not in LOCAL_HOSTS:
             logging.getLogger("spacearm.api").warning(
-                "authentication is OFF and the API listens on %s: set SPACEARM_API_KEYS before exposing it", host
+                "authentication is OFF and the API listens on %s: set SPACEARM_API_KEYS before exposing it", settings.host
             )
-        uvicorn.run(create_app(settings), host=host, port=args.port or settings.port, log_level=log_level, log_config=log_config)
+        serve(create_app(settings), settings, log_level, log_config)
         return 0
     if args.command == "worker":
         from service.worker import run_worker
 
         run_worker(settings, once=args.once)
         return 0
+    if args.command == "plan":
+        from service.plan_file import plan_file
+
+        return plan_file(args.file, args.trajectory, args.json, settings)
     if args.command == "run":
         from service.run import child_env, run
 

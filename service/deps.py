@@ -8,8 +8,9 @@ import functools
 import hashlib
 import inspect
 from collections.abc import Callable, Iterator
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
+import mimeparse
 from fastapi import Depends, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.routing import APIRoute
@@ -18,9 +19,10 @@ from starlette.convertors import Convertor, register_url_convertor
 from typing_extensions import TypeAliasType
 
 from service import figures
-from service.errors import MAX_OFFSET, ApiError
+from service.errors import MAX_OFFSET, ApiError, NotAcceptableError
 from service.infra.db import Database
 from service.infra.settings import Settings
+from service.schemas.common import ID_PATTERN, ID_REGEX
 from service.schemas.plans import PLAN_SECTIONS
 
 
@@ -29,7 +31,7 @@ class IdConvertor(Convertor[str]):
     Other text does not match the route (404), so ``/v1/plans/shortest-duration`` is not read as
     a plan id and ``OPTIONS`` lists only the methods of the routes that really match."""
 
-    regex = "[0-9a-f]{32}"
+    regex = ID_REGEX
 
     def convert(self, value: str) -> str:
         return value
@@ -39,7 +41,6 @@ class IdConvertor(Convertor[str]):
 
 
 register_url_convertor("id", IdConvertor())
-ID_PATTERN = f"^{IdConvertor.regex}$"
 PlanId = Annotated[str, Path(pattern=ID_PATTERN, description="a plan's id (32 hex digits)", examples=["0" * 32])]
 JobId = Annotated[str, Path(pattern=ID_PATTERN, description="a tuning job's id (32 hex digits)", examples=["0" * 32])]
 LandscapeId = Annotated[
@@ -67,6 +68,7 @@ def get_app_settings(request: Request) -> Settings:
 
 
 SessionDep = Annotated[Session, Depends(get_session)]
+DbDep = Annotated[Database, Depends(get_db)]
 SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 
 
@@ -113,16 +115,79 @@ FieldsQuery = Annotated[
 ]
 
 
-async def run_admitted(request: Request, work: Callable[[], Response]) -> Response:
-    """Run ``work()`` in the thread pool once the plan admission lets it in."""
-    async with request.app.state.plan_admission.slot():
-        response: Response = await run_in_threadpool(work)
-        return response
+def schema_ref(model: type) -> dict[str, str]:
+    return {"$ref": f"#/components/schemas/{model.__name__}"}
 
 
-FigureFormat = TypeAliasType("FigureFormat", Literal["svg", "png"])
+def one_of_body(models: tuple[type, ...], examples: dict[str, Any]) -> dict[str, Any]:
+    """The ``openapi_extra`` of a route that reads a raw JSON body, one of ``models`` (those FastAPI
+    does not see are added to the document's components by :data:`service.openapi.BODY_MODELS`)."""
+    schema = {"oneOf": [schema_ref(model) for model in models]}
+    return {"requestBody": {"required": True, "content": {"application/json": {"schema": schema, "examples": examples}}}}
+
+
+T = TypeVar("T")
+
+
+async def run_admitted(request: Request, work: Callable[[], T], what: str | None = None) -> T:
+    """Run ``work()`` in the thread pool once the plan admission lets it in (``what`` names the
+    work in a 503, plans by default)."""
+    async with request.app.state.plan_admission.slot(what):
+        return await run_in_threadpool(work)
+
+
+def negotiate(accept: str | None, offered: list[str]) -> str | None:
+    """The media type of ``offered`` that an ``Accept`` header prefers (python-mimeparse: q values,
+    wildcards, the most specific range); on a tie the first offered, and the first for a missing,
+    empty or malformed header (which RFC 9110 lets a server ignore); None when it accepts none."""
+    if accept is None or not accept.strip():
+        return offered[0]
+    try:
+        best: str = mimeparse.best_match(offered[::-1], accept)  # it prefers the last of equals
+    except mimeparse.MimeTypeParseException:
+        return offered[0]
+    return best or None
+
+
+def json_only(request: Request) -> None:
+    """A dependency of the JSON-only plan resources: a request whose ``Accept`` excludes JSON
+    (``text/csv``, say) is a 406 that points to the trajectory export instead of a JSON answer."""
+    if negotiate(request.headers.get("accept"), ["application/json"]) is None:
+        plan_id = request.path_params.get("plan_id")
+        export = f"/v1/plans/{plan_id}/trajectory" if plan_id else "/v1/plans/{plan_id}/trajectory"
+        raise NotAcceptableError(
+            f"{request.headers.get('accept')!r} not available: plans are application/json; a plan's trajectory is "
+            f"also CSV, MAT, NPZ or a ROS JointTrajectory at GET {export} (`Accept` or `?format=csv|mat|npz|json|ros`)",
+            ["application/json"],
+        )
+
+
+JsonOnly = Depends(json_only)
+
+FigureFormat = TypeAliasType("FigureFormat", Literal["svg", "png", "pdf"])
 assert set(FigureFormat.__value__.__args__) == set(figures.FORMATS)
-Format = Annotated[FigureFormat, Query(description="`svg` (default, image/svg+xml) or `png` (image/png)")]
+Format = Annotated[
+    FigureFormat, Query(description="`svg` (default, image/svg+xml), `png` (image/png, at `dpi`) or `pdf` (application/pdf)")
+]
+#: Resolution of a PNG figure (vector formats ignore it: they are the same at any resolution).
+MIN_DPI, MAX_DPI = 50, 600
+Dpi = Annotated[
+    int | None,
+    Query(
+        ge=MIN_DPI,
+        le=MAX_DPI,
+        description=f"dots per inch of a PNG, {MIN_DPI} to {MAX_DPI} (default: the figure's own, "
+        f"{figures.DPI}); SVG and PDF ignore it (vector)",
+    ),
+]
+
+
+def figure_dpi(fmt: str, dpi: int | None) -> int | None:
+    """The resolution a figure is rendered at: ``dpi`` for a PNG, None (the figure's own) otherwise,
+    so a vector figure is cached once whatever ``dpi`` was asked."""
+    return dpi if fmt == "png" else None
+
+
 MAX_COMPARE = 8
 
 
@@ -136,8 +201,8 @@ def figure_name(names: tuple[str, ...] | list[str]) -> Any:
 #: for a conditional request whose ``If-None-Match`` names the current ``ETag``.
 IMAGE_RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {
-        "description": "the figure: SVG (`format=svg`, the default) or PNG (`format=png`)",
-        "content": {media: {"schema": {"type": "string", "format": "binary"}} for media in ("image/svg+xml", "image/png")},
+        "description": "the figure: SVG (`format=svg`, the default), PNG (`format=png`) or PDF (`format=pdf`)",
+        "content": {media: {"schema": {"type": "string", "format": "binary"}} for media in figures.FORMATS.values()},
         "headers": {
             "ETag": {"description": "the figure's version; send it back in `If-None-Match`", "schema": {"type": "string"}},
             "Cache-Control": {

@@ -8,14 +8,14 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, ValidationError
 from sqlalchemy.exc import DataError, DBAPIError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from engine.errors import ParameterError
 from service.infra.db import DatabaseUnavailableError, is_locked, unavailable_reason
-from service.schemas.common import API_LOCATION, field_path
+from service.schemas.common import API_LOCATION, dotted_path, field_path
 
 PROBLEM_JSON = "application/problem+json"
 PROBLEM_BASE = "https://spacearm.example/problems/"
@@ -26,6 +26,7 @@ TITLES = {
     401: "Unauthorized",
     404: "Not Found",
     405: "Method Not Allowed",
+    406: "Not Acceptable",
     409: "Conflict",
     413: "Content Too Large",
     422: "Unprocessable Content",
@@ -37,6 +38,7 @@ TITLES = {
 TYPES = {
     401: "unauthorized",
     404: "not-found",
+    406: "not-acceptable",
     409: "conflict",
     413: "content-too-large",
     422: "validation-error",
@@ -81,6 +83,18 @@ class ConflictError(ApiError):
         super().__init__(409, detail)
 
 
+class NotAcceptableError(ApiError):
+    """``Accept`` names none of the media types a resource has (``available``)."""
+
+    def __init__(self, detail: str, available: list[str]) -> None:
+        super().__init__(406, detail, available=available)
+
+
+def body_invalid(exc: ValidationError) -> RequestValidationError:
+    """A raw body's validation errors under ``body``, as FastAPI reports those of a typed body."""
+    return RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()])
+
+
 class TooManyRequestsError(ApiError):
     def __init__(self, detail: str, retry_after_s: int) -> None:
         super().__init__(429, detail, headers={"Retry-After": str(retry_after_s)})
@@ -104,17 +118,7 @@ class ApiValidationError(ApiError):
 
 def _error_item(e: dict[str, Any]) -> dict[str, Any]:
     loc = [p for p in e.get("loc", [])]
-    return {"field": _path(loc), "loc": loc, "message": e.get("msg", "")}
-
-
-def _path(loc: list[Any]) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        else:
-            out += ("." if out else "") + str(part)
-    return out
+    return {"field": dotted_path(loc), "loc": loc, "message": e.get("msg", "")}
 
 
 def problem(
@@ -232,9 +236,17 @@ class Problem(BaseModel):
     detail: str = Field(description="what went wrong, for a person")
     instance: str | None = Field(default=None, description="the request's path")
     errors: list[FieldError] | None = Field(default=None, description="validation errors with field paths (422)")
+    available: list[str] | None = Field(
+        default=None, description="the media types the resource has (406: `Accept` named none of them)"
+    )
 
 
 def responses(*codes: int) -> dict[int | str, dict[str, Any]]:
     """OpenAPI ``responses`` entries for the given error codes (problem+json, see :func:`service.openapi.install`)."""
-    desc = {404: "unknown id", 409: "conflict: the resource's state does not allow it", 422: "invalid body or parameters"}
+    desc = {
+        404: "unknown id",
+        406: "`Accept` names none of the media types offered (`available` lists them)",
+        409: "conflict: the resource's state does not allow it",
+        422: "invalid body or parameters",
+    }
     return {code: {"description": desc.get(code, TITLES.get(code, "error")), "model": Problem} for code in codes}

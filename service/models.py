@@ -83,6 +83,7 @@ class TuningJob(Base):
     max_attempts: Mapped[int] = mapped_column(Integer, default=3)
     cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
     lease_owner: Mapped[str | None] = mapped_column(String(128), nullable=True)
+    worker_id: Mapped[str | None] = mapped_column(String(128), nullable=True)  # who claimed it last; kept once it ends
     lease_expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     idempotency_key: Mapped[str | None] = mapped_column(String(200), nullable=True, unique=True)
     idempotency_fingerprint: Mapped[str | None] = mapped_column(String(64), nullable=True)  # SHA-256 of the body

@@ -15,20 +15,23 @@ from typing import Any
 from fastapi import FastAPI
 
 from service.errors import PROBLEM_JSON
+from service.schemas.plans import PlanRerun
 from service.schemas.robots import ROBOT_CHOICE, RobotUrdfIn
+from service.schemas.trajectories import RosJointTrajectory
 
 BEARER = "bearerAuth"
 RETRY_AFTER = {"Retry-After": {"schema": {"type": "integer", "minimum": 1}, "description": "seconds to wait before retrying"}}
 LOCATION = {"Location": {"schema": {"type": "string"}, "description": "the path of the resource created (or accepted)"}}
 
-#: Request models that a route reads from a raw body (documented by its ``openapi_extra``, so
-#: FastAPI does not see them): added to the components under their own names.
-BODY_MODELS = (RobotUrdfIn,)
+#: Models of raw bodies (a route reads its request from a raw body, or writes its response as
+#: bytes; documented by its ``openapi_extra`` or ``responses``, so FastAPI does not see them):
+#: added to the components under their own names.
+BODY_MODELS = (RobotUrdfIn, PlanRerun, RosJointTrajectory)
 
 #: Operations that store something (and answer 507 when the storage quota is spent).
 STORING = ("create_plan", "create_shortest_duration_plan", "create_robot", "create_tuning_job", "create_landscape")
 #: Synchronous plan work behind the plan admission (503 with Retry-After when it is full).
-ADMITTED = ("create_plan", "create_shortest_duration_plan", "create_landscape")
+ADMITTED = ("create_plan", "create_shortest_duration_plan", "create_landscape", "create_robot")
 
 #: operationId -> (status, {link name: (target operationId, {parameter: runtime expression})}).
 LINKS: dict[str, tuple[str, dict[str, tuple[str, dict[str, str]]]]] = {
@@ -109,6 +112,8 @@ def document_guards(doc: dict[str, Any], auth_required: bool) -> None:
             if auth_required:
                 resp.setdefault("401", {"description": "missing or invalid API key"})
             busy = "too many plans in progress, or " if op_id in ADMITTED else ""
+            if op_id == "get_tuning_job_events":
+                busy = "`SPACEARM_MAX_EVENT_STREAMS` streams are open in this API process, or "
             resp.setdefault(
                 "503",
                 {
@@ -234,8 +239,8 @@ def install(app: FastAPI, auth_required: bool) -> None:
         fastapi_422 = {"$ref": "#/components/schemas/HTTPValidationError"}
         document_guards(doc, auth_required)
         document_links(doc)
-        split_robot_choice(doc)
         document_body_models(doc)
+        split_robot_choice(doc)
         document_request_defaults(doc)
         for item in doc.get("paths", {}).values():
             for op in item.values():

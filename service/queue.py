@@ -99,6 +99,7 @@ def claim(db: Database, worker_id: str, lease_seconds: float) -> Claim | None:
         .values(
             status="running",
             lease_owner=worker_id,
+            worker_id=worker_id,
             lease_expires_at=now + timedelta(seconds=lease_seconds),
             attempts=TuningJob.attempts + 1,
             started_at=now,
@@ -173,8 +174,9 @@ def fail(db: Database, claim: Claim, error: str) -> bool:
     return _final(db, claim, status="failed", error=error, finished_at=utcnow())
 
 
-def mark_cancelled(db: Database, claim: Claim) -> bool:
-    return _final(db, claim, status="cancelled", finished_at=utcnow())
+def mark_cancelled(db: Database, claim: Claim, result: dict[str, Any] | None = None) -> bool:
+    """Cancelled as asked, with the best result found so far (None if no generation finished)."""
+    return _final(db, claim, status="cancelled", result=result, finished_at=utcnow())
 
 
 def requeue(db: Database, claim: Claim) -> bool:

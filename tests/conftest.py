@@ -4,7 +4,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
+# After the checkout: ``tests/service`` must not shadow the ``service`` package (helpers such as
+# ``robots`` and ``oracle`` are imported from here).
+sys.path.append(str(Path(__file__).parent))
 
 from engine import paper_task, table1_robot, warm_up
 

@@ -112,7 +112,7 @@ def test_batched_parameters_equal_a_loop(rng):
 
 
 def test_make_inverse_errors():
-    with pytest.raises(ValueError, match="valid methods: inverse, dls, adaptive, wdls, sdls, svf"):
+    with pytest.raises(ValueError, match="valid methods: inverse, dls, adaptive, wdls, sdls, svf, bounded"):
         make_inverse("magic")
     with pytest.raises(ValueError, match="unknown parameter"):
         make_inverse("dls", lam=0.1)
@@ -120,7 +120,7 @@ def test_make_inverse_errors():
         make_inverse("adaptive", epsilon=0.0)
     with pytest.raises(ValueError, match="lambda"):
         make_inverse("dls", **{"lambda": float("nan")})
-    assert set(METHODS) == {"inverse", "dls", "adaptive", "wdls", "sdls", "svf"}
+    assert set(METHODS) == {"inverse", "dls", "adaptive", "wdls", "sdls", "svf", "bounded"}
 
 
 def test_docstrings_cite_sources():

@@ -11,6 +11,7 @@ from robots import random_robot
 
 from engine import CartesianTask, make_inverse, make_secondary, method_names, plan, plan_batch
 from engine.inverses import thin_svd
+from engine.kernels import dynamics as dynamics_kernels
 from engine.kernels import plan as plan_kernels
 from engine.kernels import svd as svd_kernels
 from engine.kinematics import as_state, forward_kinematics
@@ -228,10 +229,14 @@ def test_kernel_stops_at_a_non_finite_twist(robot, task):
         0,
         0.0,
         task.q0.copy(),
+        np.full(6, task.joint_speed_limit),
+        True,
         False,
         trace,
+        dynamics_kernels.trajectory_buffers(task.n_steps + 1, 6, 1),
         metrics,
     )
     plan_kernels.simulate(robot.chain, task.q0.copy(), twists, *args)
     assert metrics[plan_kernels.FINITE] == 0.0 and metrics[plan_kernels.T_DIVERGED] == 7 * task.dt
     assert math.isnan(metrics[plan_kernels.POS_MAX]) and math.isinf(metrics[plan_kernels.MAX_SPEED])
+    assert metrics[plan_kernels.DYNAMICS] == 0.0 and math.isnan(metrics[plan_kernels.MAX_TORQUE])  # none for a diverged plan

@@ -59,11 +59,27 @@ def _broken(path, value):
         (("base", "inertia"), [[1, 0], [0, 1]], "base.inertia"),
         (("end_effector", "C_e"), [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "end_effector.C_e"),
         (("base", "b"), [1.0, 2.0], "base.b"),
+        (("links", 1, "torque_limit_n_m"), -1.0, "links[1].torque_limit_n_m"),
+        (("links", 1, "torque_limit_n_m"), 0.0, "links[1].torque_limit_n_m"),
+        (("links", 1, "torque_limit_n_m"), float("inf"), "links[1].torque_limit_n_m"),
+        (("links", 1, "force_limit_n"), 5.0, "links[1].force_limit_n"),  # a revolute joint's limit is a torque
     ],
 )
 def test_validation_names_the_field(path, value, field):
     with pytest.raises(ValueError, match=field.replace("[", r"\[").replace("]", r"\]")):
         RobotModel.from_dict(_broken(path, value))
+
+
+def test_table1_torque_limits_and_what_a_limit_needs():
+    """The Table-1 defaults (documented in the README), and a torque limit on a link without
+    dynamics data (zero inertia) is refused saying so: the torques need the inertia."""
+    np.testing.assert_array_equal(table1_robot().effort_limits, [2.0, 5.0, 0.5, 0.5, 0.5, 0.5])
+    with pytest.raises(ValueError, match=r"links\[2\].inertia.*torque_limit_n_m but no dynamics data"):
+        RobotModel.from_dict(_broken(("links", 2, "inertia"), [[0, 0, 0], [0, 0, 0], [0, 0, 0]]))
+    unlimited = _broken(("links", 2, "inertia"), [[0, 0, 0], [0, 0, 0], [0, 0, 0]])
+    del unlimited["links"][2]["torque_limit_n_m"]
+    with pytest.raises(ValueError, match="the GJM and the joint torques need every body's inertia"):
+        RobotModel.from_dict(unlimited)
 
 
 def test_joint_count_limits():

@@ -126,6 +126,7 @@ def test_objective_aggregations_and_penalty():
         coupled_error_final=5e-6,
         joint_speed_limit_respected=np.array([True]),
         position_limits_respected=np.array([True]),
+        joint_torque_limit_respected=np.array([True]),
         tracks="pose",
     )
     assert objective(m, Objective((0.5, 0.5), "max", "angle"))[0] == pytest.approx(0.007)
@@ -140,6 +141,9 @@ def test_objective_aggregations_and_penalty():
     m.position_limits_respected = np.array([False])
     assert math.isinf(objective(m, Objective())[0])
     m.position_limits_respected = np.array([True])
+    m.joint_torque_limit_respected = np.array([False])  # P_l counts the torque limits too
+    assert math.isinf(objective(m, Objective())[0])
+    m.joint_torque_limit_respected = np.array([True])
     m.joint_speed_limit_respected = np.array([False])
     assert math.isinf(objective(m, Objective())[0])
     with pytest.raises(ValueError, match="aggregation"):

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 from robots import random_robot
-from urdf_robots import pinocchio_from_urdf, pinocchio_gjm_and_pose, pinocchio_state, random_urdf
+from urdf_robots import chain_urdf, pinocchio_from_urdf, pinocchio_gjm_and_pose, pinocchio_state, random_urdf
 
 from engine import RobotModel, State, generalized_jacobian, make_inverse, paper_task, plan, table1_robot, urdf_robot
 from engine.kinematics import forward_kinematics
@@ -100,6 +100,7 @@ def _assert_same_model(a, b, tol=1e-12):
     np.testing.assert_allclose(a.C_e, b.C_e, atol=tol)
     np.testing.assert_array_equal(a.lower_limits, b.lower_limits)
     np.testing.assert_array_equal(a.upper_limits, b.upper_limits)
+    np.testing.assert_array_equal(a.effort_limits, b.effort_limits)
 
 
 def test_round_trips(rng):
@@ -108,6 +109,9 @@ def test_round_trips(rng):
     limited = random_robot(rng, 7, prismatic=0.5).to_dict()
     limited["links"][1]["limits"] = {"lower": -1.0, "upper": None}  # one-sided
     limited["links"][2]["limits"] = {"lower": -0.2, "upper": 0.4}
+    for link in limited["links"][3:6]:  # effort limits on limited, unlimited (continuous) and prismatic joints
+        link["force_limit_n" if link["joint_type"] == "prismatic" else "torque_limit_n_m"] = float(rng.uniform(0.1, 100.0))
+    limited["links"][2]["force_limit_n" if limited["links"][2]["joint_type"] == "prismatic" else "torque_limit_n_m"] = 0.7
     models.append(RobotModel.from_dict(limited))
     for model in models:
         again = RobotModel.from_urdf(model.to_urdf())
@@ -139,6 +143,22 @@ def test_tool_offset_moves_the_end_effector(rng):
         np.testing.assert_allclose(b.ee_attitude, a.ee_attitude @ R, atol=1e-12)
     with pytest.raises(UrdfError, match="tool"):
         RobotModel.from_urdf(text, end_effector_link="tool0", tool_offset=(offset, 2.0 * R))
+
+
+def test_effort_limits_are_read_from_limit_effort():
+    """A positive ``<limit effort>`` is the torque (N m) or force (N, prismatic) limit, on a
+    continuous joint too; URDF's placeholder 0 (what exports write when unknown) is none."""
+    text = _arm(
+        _joint("j3", "prismatic", "l2", "l3", "<axis xyz='1 0 0'/><limit lower='0' upper='0.5' effort='80' velocity='1'/>"),
+        _link("l3"),
+    )
+    text = text.replace('<axis xyz="0 0 1"/>', "<axis xyz=\"0 0 1\"/><limit effort='12.5' velocity='0'/>")
+    text = text.replace('<axis xyz="0 1 0"/>', "<axis xyz=\"0 1 0\"/><limit lower='-1' upper='1' effort='0' velocity='0'/>")
+    model = RobotModel.from_urdf(text.replace('type="revolute"><parent link="base"', 'type="continuous"><parent link="base"'))
+    np.testing.assert_array_equal(model.effort_limits, [12.5, np.inf, 80.0])
+    entries = model.to_dict()["links"]
+    assert entries[0]["torque_limit_n_m"] == 12.5 and entries[2]["force_limit_n"] == 80.0 and "torque_limit_n_m" not in entries[1]
+    assert not model.links[0].limited  # continuous: no position limit, though its <limit> has an effort
 
 
 def test_massless_frames_and_missing_limits_are_accepted():
@@ -220,6 +240,13 @@ L3 = '<link name="l3">'
         (_arm(links="<link name='l1'/>"), {}, '<link name="l1">', "two <link>"),
         (_arm(_joint("j3", "fixed", "l2", "l1")), {}, '<link name="l1">', "child of two joints"),
         (_third("revolute", "<limit lower='1' upper='-1'/>"), {}, J3, "lower"),
+        # issue 22: an empty robot says so; numbers are XML Schema doubles
+        ('<robot name="a"/>', {}, "<robot>", "no <link>"),
+        (_third("fixed", link=_inertia((1, 0, 0, 1, 0, 1)).replace('"1"', '"1_000"', 1)), {}, L3, "'1_000' is not 1 number"),
+        (_third("fixed", link=_inertia((1, 0, 0, 1, 0, 1)).replace('<mass value="1"', '<mass value="inf"')), {}, L3, "number"),
+        (_third("revolute", "<origin xyz='0x10 0 0'/>"), {}, J3, "number"),
+        (_third("revolute", "<limit lower='-1' upper='1' effort='-5' velocity='1'/>"), {}, J3, "negative"),
+        (_third("continuous", "<limit effort='nan' velocity='1'/>"), {}, J3, "finite"),
     ],
 )
 def test_refusals_name_the_element(text, options, element, reason):
@@ -249,3 +276,40 @@ def test_geometry_and_unknown_elements_are_ignored():
     text = _third("fixed", link=link).replace("</robot>", "<gazebo>anything</gazebo></robot>")
     model = RobotModel.from_urdf(text)
     assert model.n_joints == 2 and model.end_effector_name == "l3"
+
+
+@pytest.mark.parametrize("kind", ["revolute", "fixed"])
+def test_a_megabyte_of_joints_is_refused_before_the_tree_is_walked(kind):
+    """Issue 22: the joint and link counts are checked first, and reading is linear in the
+    document (a 10,000-joint chain took 9 s of CPU when the chain walk came first)."""
+    import time
+
+    text = chain_urdf(10_000, kind)
+    assert 1_000_000 < len(text.encode()) <= MAX_URDF_BYTES
+    start = time.process_time()
+    with pytest.raises(UrdfError, match="at most") as info:
+        RobotModel.from_urdf(text)
+    print(f"\n{kind}: {len(text)} bytes, 10,000 joints refused in {time.process_time() - start:.3f} s of CPU: {info.value}")
+    assert info.value.element == "<robot>"
+    moving = chain_urdf(13)
+    with pytest.raises(UrdfError, match="13 moving joints"):
+        RobotModel.from_urdf(moving)
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        (('<mass value="1"/>', '<mass value="1e308"/>'), "mass"),
+        ((INERTIA, INERTIA.replace('"1"', '"1e308"')), "inertia"),
+        (('<origin xyz="0 0 1"/>', '<origin xyz="1e200 0 1"/>'), ".b"),
+        (("<axis xyz='0 0 1'/>", "<axis xyz='0 0 1'/><limit lower='-1e308' upper='1e308'/>"), "limits"),
+    ],
+)
+def test_huge_numbers_are_refused_with_the_parameter_sets_bounds(change, field):
+    """Issue 22: a URDF's numbers are finite but may be huge; the model built from it has the
+    bounds of any parameter set (engine.bounds), and nothing overflows on the way (no LinAlgError)."""
+    text = _third("revolute", "<axis xyz='0 0 1'/>").replace(*change)
+    assert text != _third("revolute", "<axis xyz='0 0 1'/>")
+    with pytest.raises(UrdfError) as info:
+        RobotModel.from_urdf(text)
+    assert field in info.value.field + str(info.value), info.value

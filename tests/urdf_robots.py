@@ -110,3 +110,14 @@ def pinocchio_gjm_and_pose(pm: pin.Model, frame: str, config: np.ndarray) -> tup
     J_g = J[:, 6:] - J[:, :6] @ np.linalg.solve(Ag[:, :6], Ag[:, 6:])
     placement = data.oMf[frame_id]
     return J_g, placement.translation.copy(), placement.rotation.copy()
+
+
+def chain_urdf(joints: int, kind: str = "revolute") -> str:
+    """A URDF of ``joints`` joints of ``kind`` in a chain, about 100 bytes a joint (links without
+    inertia but the first; single quotes, so JSON adds nothing): the shape of a megabyte URDF
+    that a careless reader walks in quadratic time."""
+    inertia = "<inertia ixx='1' ixy='0' ixz='0' iyy='1' iyz='0' izz='1'/>"
+    parts = [f"<robot name='big'><link name='0'><inertial><mass value='1'/>{inertia}</inertial></link>"]
+    for i in range(1, joints + 1):
+        parts.append(f"<link name='{i}'/><joint name='j{i}' type='{kind}'><parent link='{i - 1}'/><child link='{i}'/></joint>")
+    return "".join(parts) + "</robot>"

@@ -48,13 +48,13 @@ class Chain(NamedTuple):
     b: np.ndarray  # (n+1, 3) m, b_0 (base CoM -> joint 1) then CoM i -> joint i+1 / end effector
     C_e: np.ndarray  # (3, 3) end-effector frame in the last link's frame
     total_mass: float  # kg
-    joints: (
-        np.ndarray
-    )  # (n, 3) per joint: SLIDE (1.0: prismatic, q in m; 0.0: revolute, q in rad), LOWER, UPPER limits (+-inf: none)
+    # (n, 4) per joint: SLIDE (1.0: prismatic, q in m; 0.0: revolute, q in rad), LOWER, UPPER position
+    # limits (+-inf: none), EFFORT limit (N m or N; +inf: none)
+    joints: np.ndarray
 
 
-# Columns of Chain.joints (one array rather than three: kernels pass the chain by value).
-SLIDE, LOWER, UPPER = 0, 1, 2
+# Columns of Chain.joints (one array rather than four: kernels pass the chain by value).
+SLIDE, LOWER, UPPER, EFFORT = 0, 1, 2, 3
 
 
 # Buffers are plain tuples of arrays (numba types a tuple and a named tuple differently, and

@@ -14,6 +14,9 @@ their parameters in a float array:
 - ``SDLS`` (gamma_max): selectively damped least squares (Buss and Kim 2005).
 - ``SVF`` (sigma0, nu): ``sigma_hat = (sigma^3 + nu sigma^2 + 2 sigma + 2 sigma0) / (sigma^2 +
   nu sigma + 2)``, ``g_i = 1 / sigma_hat_i`` (Colome and Torras 2015).
+- ``BOUNDED`` (lambda): the DLS filter here; the planner's step loop then holds the joint rates
+  in the box of the speed and position limits by a QP when the filter's rates leave it
+  (:func:`engine.kernels.plan.bound_rates`). Without a joint state (this module) it is DLS.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import numpy as np
 from engine.kernels.jit import kernel
 from engine.kernels.svd import jacobi_svd, svd_buffers
 
-PLAIN, DLS, ADAPTIVE, WDLS, SDLS, SVF = 0, 1, 2, 3, 4, 5
+PLAIN, DLS, ADAPTIVE, WDLS, SDLS, SVF, BOUNDED = 0, 1, 2, 3, 4, 5, 6
 MAX_PARAMS = 2
 TINY = 1e-300
 RCOND = 1e-12  # the plain inverse drops singular values below RCOND sigma_1
@@ -81,7 +84,7 @@ def apply_inverse(method, params, J, U, s, V, xdot, qd, damping, scratch):
         for i in range(m):
             gain[i] = 1.0 / s[i] if s[i] > cut else 0.0
             damping[i] = 0.0
-    elif method == DLS:
+    elif method == DLS or method == BOUNDED:  # noqa: SIM109 (plain comparisons in the compiled kernel)
         lam = params[0]
         for i in range(m):
             gain[i] = _damped_gain(s[i], lam)

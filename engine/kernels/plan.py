@@ -21,6 +21,16 @@ final), per-joint peak speeds (revolute and prismatic apart), the smallest singu
 |det| of the tracked Jacobian when it is square, with their times, the first sample where a
 joint is outside its position limits, and the carrier's rotation from its start. A non-finite
 Jacobian or joint rate ends the plan as diverged.
+
+The ``bounded`` inverse (:func:`bound_rates`) holds each step's joint rates in the box of the
+speed limits and of the position limits one step ahead, by the exact QP of
+:mod:`engine.kernels.qp` when the damped least-squares rates leave it.
+
+Dynamics (``dynamics`` set): the executed trajectory's joint torques and mount wrench
+(:func:`engine.kernels.dynamics.trajectory_dynamics`) after the loop, for every sample (a plan
+that keeps its trace) or for their peaks only (metrics-only evaluation, whose joint samples are
+kept in a per-plan buffer of ``(N+1, n)`` for the spline, which needs them all). About 2 µs per
+sample; metrics-only evaluations do it only when the robot has an effort limit.
 """
 
 from __future__ import annotations
@@ -28,9 +38,11 @@ from __future__ import annotations
 import numpy as np
 
 from engine.kernels.chain import LOWER, SLIDE, UPPER, angular_map, gjm, gjm_buffers, kinematics, kinematics_buffers
-from engine.kernels.inverse import apply_inverse
+from engine.kernels.dynamics import trajectory_buffers, trajectory_dynamics
+from engine.kernels.inverse import BOUNDED, apply_inverse
 from engine.kernels.jit import kernel
 from engine.kernels.linalg import det3, det6
+from engine.kernels.qp import INVALID, V_QD, dls_qp, qp_buffers
 from engine.kernels.redundancy import NONE, null_space_step
 from engine.kernels.so3 import exp_so3, log_so3, rotation_angle
 from engine.kernels.svd import jacobi_svd, svd_buffers
@@ -51,7 +63,14 @@ FINITE, T_DIVERGED = 15, 16
 MAX_LIN_SPEED, MAX_LIN_SPEED_JOINT = 17, 18
 LIMIT_JOINT, T_LIMIT, LIMIT_EXCESS = 19, 20, 21
 BASE_ROT_MAX, BASE_ROT_FINAL = 22, 23
-N_METRICS = 24
+MAX_TORQUE, MAX_TORQUE_JOINT, MAX_FORCE, MAX_FORCE_JOINT = 24, 25, 26, 27
+EFFORT_JOINT, T_EFFORT, EFFORT_PEAK, DYNAMICS = 28, 29, 30, 31
+N_METRICS = 32
+
+#: A position limit's rate bound is shrunk by this factor so that ``q + qd dt`` (two roundings)
+#: cannot pass the limit: rounding is monotone, so ``fl(q + fl(qd dt))`` stays on the limit's
+#: side once ``qd dt`` is below the gap by more than a few ulps.
+LIMIT_SHRINK = 1.0 - 8.0 * 2.220446049250313e-16
 
 
 @kernel
@@ -164,20 +183,95 @@ def _secondary(objective, objective_gain, sv, g, q, centre, qd, null_work):
 
 
 @kernel
+def rate_box(ch, q, dt, speed_limit, lo, hi):
+    """The box of the joint rates over the next step: ``|qd_j| <= speed_limit[j]`` and
+    ``lower_j <= q_j + qd_j dt <= upper_j`` (shrunk by :data:`LIMIT_SHRINK`). The speed limit
+    has priority: a joint already past a position limit gets back at most at its speed limit
+    (``lo = hi = ±speed_limit`` when it is further out than one step at that speed)."""
+    for j in range(q.shape[0]):
+        v = speed_limit[j]
+        low = -v
+        high = v
+        lower = ch.joints[j, LOWER]
+        upper = ch.joints[j, UPPER]
+        if lower > -np.inf:
+            low = max(low, (lower - q[j]) / dt * LIMIT_SHRINK)
+        if upper < np.inf:
+            high = min(high, (upper - q[j]) / dt * LIMIT_SHRINK)
+        lo[j] = min(low, v)
+        hi[j] = max(high, -v)
+
+
+@kernel
+def bound_rates(ch, q, dt, speed_limit, U, s, V, damping, lam, xdot, qd, shift, box, qp_buf, no_rows):
+    """The ``bounded`` inverse's step: ``qd (n,)`` holds the damped least-squares rates (plus
+    the null-space motion ``shift (n,)`` of a secondary objective, zero without one). If they
+    leave the box of :func:`rate_box`, replace them by the exact minimiser of ``|J x - xdot|^2
+    + lam^2 |x - shift|^2`` over the box (the QP of :func:`engine.kernels.qp.dls_qp` on the thin
+    SVD ``U``, ``s``, ``V`` with ``damping (m,)``; ``J shift = 0``, so this is the DLS problem in
+    ``x - shift`` over the shifted box), clipped to the box against rounding: the box holds
+    bitwise. Returns False if the QP found its input invalid (``qd`` is then NaN).
+    ``box (2, n)``, ``qp_buf``: :func:`engine.kernels.qp.qp_buffers` ``(n, 0)``; ``no_rows``
+    ``((0, n), (0,))``."""
+    n = q.shape[0]
+    lo = box[0]
+    hi = box[1]
+    rate_box(ch, q, dt, speed_limit, lo, hi)
+    inside = True
+    for j in range(n):
+        if not (lo[j] <= qd[j] <= hi[j]):
+            inside = False
+    if inside:
+        return True
+    for j in range(n):
+        lo[j] -= shift[j]
+        hi[j] -= shift[j]
+    status, _ = dls_qp(U, s, V, damping, lam, xdot, lo, hi, no_rows[0], no_rows[1], 0, qp_buf)
+    rate_box(ch, q, dt, speed_limit, lo, hi)
+    solution = qp_buf[2][V_QD]
+    for j in range(n):
+        qd[j] = min(max(solution[j] + shift[j], lo[j]), hi[j])
+    return status != INVALID
+
+
+@kernel
 def simulate(
-    ch, q0, twists, p_des, A_des, dt, gain, method, params, rows, objective, objective_gain, centre, record, trace, metrics
+    ch,
+    q0,
+    twists,
+    p_des,
+    A_des,
+    dt,
+    gain,
+    method,
+    params,
+    rows,
+    objective,
+    objective_gain,
+    centre,
+    speed_limit,
+    dynamics,
+    record,
+    trace,
+    dyn,
+    metrics,
 ):
     """Plan one parameter set. ``twists (N+1, 6)`` commanded path twists and ``p_des (N+1, 3)``,
     ``A_des (N+1, 3, 3)`` desired poses (world); ``gain`` the pose feedback gain (1/s);
     ``rows`` = 6 tracks the pose, 3 the position only; ``objective``, ``objective_gain`` and
-    ``centre (n,)`` the secondary objective (:mod:`engine.kernels.redundancy`).
+    ``centre (n,)`` the secondary objective (:mod:`engine.kernels.redundancy`);
+    ``speed_limit (n,)`` each joint's speed limit (rad/s or m/s; the ``bounded`` inverse's box).
 
     ``metrics (N_METRICS,)`` is always written. With ``record``, ``trace`` (a tuple of
     ``q (N+1, n)``, ``qd``, ``base_p (N+1, 3)``, ``base_A (N+1, 3, 3)``, ``ee_p``, ``ee_A``,
     ``sv (N+1, m)``, ``det (N+1,)``, ``damping (N+1, m)``, ``pos_err (N+1,)``, ``att_err``)
-    receives every sample; samples after a divergence are NaN.
+    receives every sample; samples after a divergence are NaN. With ``dynamics``, ``dyn``
+    (:func:`engine.kernels.dynamics.trajectory_buffers` of ``N+1`` samples, with ``N+1`` rows
+    when ``record``, else 1) receives the executed trajectory's accelerations, torques and mount
+    wrench of a finite plan (NaN otherwise), and their peaks go into ``metrics``.
     """
     tr_q, tr_qd, tr_bp, tr_bA, tr_ep, tr_eA, tr_sv, tr_det, tr_damp, tr_perr, tr_aerr = trace
+    dyn_q = dyn[1]
     n = q0.shape[0]
     m = min(rows, n)
     N = twists.shape[0] - 1
@@ -206,6 +300,11 @@ def simulate(
     xdot_b = np.empty(6)
     inv_scratch = np.empty((2, 6))
     det_scratch = np.empty((6, 6))
+    bounded = method == BOUNDED
+    shift = np.zeros(n)
+    box = np.empty((2, n))
+    qp_buf = qp_buffers(n, 0)
+    no_rows = (np.empty((0, n)), np.empty(0))
 
     kinematics(ch, q, eye, zero, True, kin)
     gjm(ch, kin, g)
@@ -286,7 +385,17 @@ def simulate(
         if ok:
             apply_inverse(method, params, J_b, sv[1], s, sv[3], xdot_b, qd, damping, inv_scratch)
             if redundant:
+                if bounded:
+                    for j in range(n):
+                        shift[j] = qd[j]
                 _secondary(objective, objective_gain, sv, g, q, centre, qd, null_work)
+                if bounded:
+                    for j in range(n):
+                        shift[j] = qd[j] - shift[j]
+            if bounded:
+                ok = bound_rates(
+                    ch, q, dt, speed_limit, sv[1], s, sv[3], damping, params[0], xdot_b, qd, shift, box, qp_buf, no_rows
+                )
             for j in range(n):
                 if not np.isfinite(qd[j]):
                     ok = False
@@ -297,6 +406,9 @@ def simulate(
         det = np.nan
         if n == rows and np.isfinite(s[0]):
             det = det6(J_b, det_scratch) if rows == 6 else det3(J_b)
+        if dynamics:
+            for j in range(n):
+                dyn_q[k, j] = q[j]
         if record:
             for j in range(n):
                 tr_q[k, j] = q[j]
@@ -388,6 +500,39 @@ def simulate(
     metrics[LIMIT_JOINT] = limit_joint
     metrics[T_LIMIT] = t_limit
     metrics[LIMIT_EXCESS] = limit_excess if limit_joint >= 0 else np.nan
+    _dynamics_metrics(ch, dt, N, finite and dynamics, qd, dyn, record, metrics)
+
+
+@kernel
+def _dynamics_metrics(ch, dt, N, run, end_rate, dyn, record, metrics):
+    """The executed trajectory's dynamics of a finite plan (``run``) into ``dyn`` and their
+    peaks into ``metrics``; without ``run`` the recorded rows are NaN and the peaks unknown."""
+    if run and N >= 1:
+        ok, peak, peak_joint, peak_lin, peak_lin_joint, over, t_over, over_peak = trajectory_dynamics(
+            ch, dt, N + 1, end_rate, dyn, record
+        )
+        metrics[MAX_TORQUE] = peak if ok else np.nan
+        metrics[MAX_TORQUE_JOINT] = peak_joint
+        metrics[MAX_FORCE] = peak_lin if ok else np.nan
+        metrics[MAX_FORCE_JOINT] = peak_lin_joint
+        metrics[EFFORT_JOINT] = over
+        metrics[T_EFFORT] = t_over
+        metrics[EFFORT_PEAK] = over_peak
+        metrics[DYNAMICS] = 1.0
+        return
+    if record:
+        dyn[3][:] = np.nan
+        dyn[4][:] = np.nan
+        dyn[5][:] = np.nan
+        dyn[6][:] = np.nan
+    metrics[MAX_TORQUE] = np.nan
+    metrics[MAX_TORQUE_JOINT] = -1
+    metrics[MAX_FORCE] = np.nan
+    metrics[MAX_FORCE_JOINT] = -1
+    metrics[EFFORT_JOINT] = -1
+    metrics[T_EFFORT] = np.nan
+    metrics[EFFORT_PEAK] = np.nan
+    metrics[DYNAMICS] = 0.0
 
 
 @kernel
@@ -411,11 +556,32 @@ def empty_trace(n, rows=6):
 
 @kernel
 def evaluate_range(
-    ch, q0, twists, p_des, A_des, dt, gain, method, params, rows, objective, objective_gain, centre, start, stop, out
+    ch,
+    q0,
+    twists,
+    p_des,
+    A_des,
+    dt,
+    gain,
+    method,
+    params,
+    rows,
+    objective,
+    objective_gain,
+    centre,
+    speed_limit,
+    dynamics,
+    start,
+    stop,
+    out,
 ):
     """Metrics ``out[b] (N_METRICS,)`` of parameter sets ``params[b]`` for ``b`` in
-    ``[start, stop)``, no traces kept: memory independent of the number of steps."""
-    trace = empty_trace(q0.shape[0], rows)
+    ``[start, stop)``, no traces kept: memory independent of the number of steps, except with
+    ``dynamics`` (the effort peaks), whose spline needs the joint samples of one plan at a time
+    (``3 (N+1) n`` floats, reused by the plans of the range)."""
+    n = q0.shape[0]
+    trace = empty_trace(n, rows)
+    dyn = trajectory_buffers(twists.shape[0] if dynamics else 0, n, 1 if dynamics else 0)
     for b in range(start, stop):
         simulate(
             ch,
@@ -431,7 +597,10 @@ def evaluate_range(
             objective,
             objective_gain,
             centre,
+            speed_limit,
+            dynamics,
             False,
             trace,
+            dyn,
             out[b],
         )

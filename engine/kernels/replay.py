@@ -10,6 +10,9 @@ the planner (they are checked against Pinocchio on their own).
 The integrator is Dormand and Prince's DOP853 (Hairer, Norsett and Wanner, Solving ODEs I,
 II.10) with the coefficients and the step-size control of ``scipy.integrate.solve_ivp``
 (``method="DOP853"``), run on each plan step separately (the joint rates jump at the samples).
+The joint motion is an input, a polynomial per step: linear for a plan
+(:func:`integrate`), the executed cubic spline for :mod:`engine.executed`
+(:func:`integrate_motion`).
 """
 
 from __future__ import annotations
@@ -154,15 +157,25 @@ def base_twist(ch, kin, qd, v_j, w_j, twist):
 
 
 @kernel
-def _rhs(ch, q_k, qd_k, t_k, t, y, dy, work):
+def _rhs(ch, coef_k, t_k, t, y, dy, work):
     """``dy/dt`` of the replay state ``y = [r_0 (3); quaternion (4)]`` at time ``t`` inside the
-    step that starts at ``t_k`` with joint angles ``q_k`` and rates ``qd_k``."""
-    kin, q, A0, v_j, w_j, twist = work
+    step that starts at ``t_k``, where the joints follow the polynomial ``q(t_k + s) = sum_p
+    coef_k[p] s^p`` (``coef_k (P, n)``; P = 2 for the plan's linear motion)."""
+    kin, q, qd, A0, v_j, w_j, twist = work
+    s = t - t_k
+    P = coef_k.shape[0]
     for j in range(q.shape[0]):
-        q[j] = q_k[j] + qd_k[j] * (t - t_k)
+        pos = coef_k[P - 1, j]
+        rate = (P - 1) * coef_k[P - 1, j]
+        for p in range(P - 2, -1, -1):
+            pos = pos * s + coef_k[p, j]
+            if p > 0:
+                rate = rate * s + p * coef_k[p, j]
+        q[j] = pos
+        qd[j] = rate
     quaternion_to_matrix(y[3:], A0)
     kinematics(ch, q, A0, y[:3], False, kin)
-    ok = base_twist(ch, kin, qd_k, v_j, w_j, twist)
+    ok = base_twist(ch, kin, qd, v_j, w_j, twist)
     w0 = twist[3]
     w1 = twist[4]
     w2 = twist[5]
@@ -186,11 +199,35 @@ def _rms(x):
 
 @kernel
 def integrate(ch, t, q, qd, ys, rtol, atol):
-    """Replay the plan ``t (N+1,)``, ``q (N+1, n)``, ``qd (N+1, n)``: ``ys[0]`` holds the start
-    state, ``ys[k+1]`` receives the state at ``t[k+1]`` (quaternion normalised). Returns
-    ``(status, failed_step, n_function_evaluations)``."""
-    n = q.shape[1]
-    work = (kinematics_buffers(n), np.empty(n), np.empty((3, 3)), np.empty((n + 1, 3)), np.empty((n + 1, 3)), np.empty(6))
+    """Replay the plan ``t (N+1,)``, ``q (N+1, n)``, ``qd (N+1, n)`` (the joints move linearly,
+    ``q_k + (t - t_k) qd_k``, over each step): ``ys[0]`` holds the start state, ``ys[k+1]``
+    receives the state at ``t[k+1]`` (quaternion normalised). Returns ``(status, failed_step,
+    n_function_evaluations)``."""
+    N = t.shape[0] - 1
+    coef = np.empty((N, 2, q.shape[1]))
+    for k in range(N):
+        coef[k, 0] = q[k]
+        coef[k, 1] = qd[k]
+    return integrate_motion(ch, t, coef, ys, rtol, atol)
+
+
+@kernel
+def integrate_motion(ch, t, coef, ys, rtol, atol):
+    """Integrate the base along a joint motion given piece by piece: over ``[t_k, t_{k+1}]``
+    (``t (N+1,)``) the joints follow ``q(t_k + s) = sum_p coef[k, p] s^p`` (``coef (N, P, n)``).
+    ``ys[0]`` holds the start state ``[r_0 (3); quaternion (4)]``, ``ys[k+1]`` receives the
+    state at ``t[k+1]`` (quaternion normalised). Returns ``(status, failed_step,
+    n_function_evaluations)``."""
+    n = coef.shape[2]
+    work = (
+        kinematics_buffers(n),
+        np.empty(n),
+        np.empty(n),
+        np.empty((3, 3)),
+        np.empty((n + 1, 3)),
+        np.empty((n + 1, 3)),
+        np.empty(6),
+    )
     dim = 7
     K = np.empty((N_STAGES + 1, dim))
     y = np.empty(dim)
@@ -204,11 +241,10 @@ def integrate(ch, t, q, qd, ys, rtol, atol):
     for k in range(t.shape[0] - 1):
         t_k = t[k]
         t_end = t[k + 1]
-        q_k = q[k]
-        qd_k = qd[k]
+        coef_k = coef[k]
         for i in range(dim):
             y[i] = ys[k, i]
-        if not _rhs(ch, q_k, qd_k, t_k, t_k, y, f, work):
+        if not _rhs(ch, coef_k, t_k, t_k, y, f, work):
             return SINGULAR, k, nfev
         nfev += 1
         interval = t_end - t_k
@@ -228,7 +264,7 @@ def integrate(ch, t, q, qd, ys, rtol, atol):
             h0 = min(h0, interval)
             for i in range(dim):
                 y_stage[i] = y[i] + h0 * f[i]
-            _rhs(ch, q_k, qd_k, t_k, t_k + h0, y_stage, f1, work)
+            _rhs(ch, coef_k, t_k, t_k + h0, y_stage, f1, work)
             nfev += 1
             d2 = 0.0
             for i in range(dim):
@@ -263,13 +299,13 @@ def integrate(ch, t, q, qd, ys, rtol, atol):
                         for st in range(s):
                             acc += K[st, i] * A[s, st]
                         y_stage[i] = y[i] + acc * h
-                    _rhs(ch, q_k, qd_k, t_k, tc + C[s] * h, y_stage, K[s], work)
+                    _rhs(ch, coef_k, t_k, tc + C[s] * h, y_stage, K[s], work)
                 for i in range(dim):
                     acc = 0.0
                     for st in range(N_STAGES):
                         acc += K[st, i] * B[st]
                     y_new[i] = y[i] + h * acc
-                _rhs(ch, q_k, qd_k, t_k, t_new, y_new, K[N_STAGES], work)
+                _rhs(ch, coef_k, t_k, t_new, y_new, K[N_STAGES], work)
                 nfev += N_STAGES
                 err5 = 0.0
                 err3 = 0.0

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -262,11 +262,21 @@ def tune(
 
 @dataclass(frozen=True)
 class Comparison:
-    """The paper's comparison: tuned DLS versus tuned adaptive damping, same objective."""
+    """The paper's comparison, tuned DLS versus tuned adaptive damping, same objective, with a
+    third row: the ``bounded`` inverse (DLS held within the joint limits by a QP) tuned alike."""
 
     adaptive: TuneResult
     dls: TuneResult
     improvement_percent: float  # 100 (B_dls - B_adaptive) / B_dls; nan if either infeasible
+    bounded: TuneResult | None = None  # None when compare() was asked for two rows only
+    bounded_improvement_percent: float = math.nan  # 100 (B_dls - B_bounded) / B_dls
+
+    def rows(self) -> list[tuple[str, TuneResult, float]]:
+        """``(label, result, improvement over the tuned DLS in %)`` per row, DLS first."""
+        out = [("dls", self.dls, 0.0), (self.adaptive.method, self.adaptive, self.improvement_percent)]
+        if self.bounded is not None:
+            out.append(("bounded", self.bounded, self.bounded_improvement_percent))
+        return out
 
 
 def improvement_percent(b_baseline: float, b_new: float) -> float:
@@ -282,10 +292,18 @@ def compare(
     method: str = "adaptive",
     bounds: Mapping[str, Sequence[float]] | None = None,
     dls_bounds: Mapping[str, Sequence[float]] | None = None,
+    with_bounded: bool = True,
+    bounded_bounds: Mapping[str, Sequence[float]] | None = None,
     **ga: Any,
 ) -> Comparison:
-    """Tune ``method`` and the constant-damping DLS baseline with the same GA settings, speed
-    limit and objective (a fair baseline: the best constant damping, not an arbitrary one)."""
+    """Tune ``method`` and the constant-damping DLS baseline with the same GA settings, limits
+    and objective (a fair baseline: the best constant damping, not an arbitrary one), and with
+    ``with_bounded`` the ``bounded`` inverse too (the third row)."""
     tuned = tune(model, tasks, method, bounds=bounds, **ga)
     baseline = tune(model, tasks, "dls", bounds=dls_bounds, **ga)
-    return Comparison(tuned, baseline, improvement_percent(baseline.best_objective_b, tuned.best_objective_b))
+    b_dls = baseline.best_objective_b
+    comparison = Comparison(tuned, baseline, improvement_percent(b_dls, tuned.best_objective_b))
+    if not with_bounded:
+        return comparison
+    bounded = tune(model, tasks, "bounded", bounds=bounded_bounds, **ga)
+    return replace(comparison, bounded=bounded, bounded_improvement_percent=improvement_percent(b_dls, bounded.best_objective_b))

@@ -42,18 +42,19 @@ class Admission:
         return max(1, math.ceil(min(self.wait_s, 30.0)))
 
     @asynccontextmanager
-    async def slot(self) -> AsyncIterator[None]:
+    async def slot(self, what: str | None = None) -> AsyncIterator[None]:
+        """Hold one of the slots (``what`` names the work in a 503, ``self.what`` by default)."""
         if self._semaphore is None:  # created on the event loop that uses it
             self._semaphore = asyncio.Semaphore(self.slots)
         if self.running >= self.slots and self.waiting >= self.queue:
             self.refused += 1
-            raise OverloadedError(self.what, self._retry_after())
+            raise OverloadedError(what or self.what, self._retry_after())
         self.waiting += 1
         try:
             await asyncio.wait_for(self._semaphore.acquire(), self.wait_s)
         except TimeoutError:
             self.refused += 1
-            raise OverloadedError(self.what, self._retry_after()) from None
+            raise OverloadedError(what or self.what, self._retry_after()) from None
         finally:
             self.waiting -= 1
         self.running += 1

@@ -18,6 +18,7 @@ its pooled connections, so it recovers by itself when the fault ends.
 from __future__ import annotations
 
 import functools
+import hashlib
 import logging
 import os
 import random
@@ -29,13 +30,14 @@ from pathlib import Path
 from typing import Any, ParamSpec, TypeVar
 from urllib.parse import quote
 
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.infra import jsonio
+from service.infra.reserve import DiskReserve
 
 P = ParamSpec("P")
 T = TypeVar("T")
@@ -52,6 +54,7 @@ RETRYABLE_SQLSTATES = frozenset({"40001", "40P01", "55P03"})
 # read-only transaction, insufficient resources (53: disk full, out of memory, too many
 # connections), operator intervention (57: shutdown, cannot connect now)
 UNAVAILABLE_SQLSTATES = ("08", "25006", "53", "57")
+DISK_FULL = "the database's disk is full"
 # SQLite's words for the same (read-only file, full disk, missing or unreadable file, I/O error)
 UNAVAILABLE_SQLITE = ("readonly", "read-only", "disk is full", "unable to open", "disk i/o error", "not a database")
 
@@ -90,14 +93,12 @@ def unavailable_reason(exc: BaseException) -> str | None:
         return None
     state = getattr(exc.orig, "sqlstate", None) or ""
     if state and any(state.startswith(prefix) for prefix in UNAVAILABLE_SQLSTATES):
-        return {"25006": "the database is read-only", "53100": "the database's disk is full"}.get(
-            state, "the database server is unavailable"
-        )
+        return {"25006": "the database is read-only", "53100": DISK_FULL}.get(state, "the database server is unavailable")
     message = str(exc.orig).lower()
     if "readonly" in message or "read-only" in message:
         return "the database is read-only"
     if "disk is full" in message:
-        return "the database's disk is full"
+        return DISK_FULL
     if any(w in message for w in UNAVAILABLE_SQLITE):
         return "the database file cannot be opened"
     if exc.connection_invalidated:
@@ -209,7 +210,8 @@ def make_engine(
 
 class Database:
     """An engine and its session factory. For SQLite it remembers which file it opened (device
-    and inode) and checks, before every session, that the path still names that file."""
+    and inode) and checks, before every session, that the path still names that file; it keeps a
+    reserve of disk space for deletions (:mod:`service.infra.reserve`)."""
 
     def __init__(
         self,
@@ -228,6 +230,7 @@ class Database:
         self.sessionmaker = sessionmaker(self.engine, expire_on_commit=False)
         self._identity: tuple[int, int, bool] | None = None
         self._lock = threading.Lock()
+        self.reserve = DiskReserve(self.path)
 
     def check_file(self) -> None:
         """Raise :class:`DatabaseUnavailableError` if the SQLite file is missing; if the path now
@@ -243,6 +246,7 @@ class Database:
             raise DatabaseUnavailableError(
                 f"the database file {self.path} is missing: restore it, or create it with `spacearm migrate`"
             ) from None
+        self.reserve.keep()
         identity = (st.st_dev, st.st_ino, os.access(self.path, os.W_OK))
         with self._lock:
             if self._identity is None:
@@ -276,15 +280,49 @@ class Database:
                 session.rollback()
                 raise
 
-    def write(self, build: Callable[[Session], T]) -> T:
-        """Run ``build`` in its own session and commit, retried when the database is locked."""
+    def write(self, build: Callable[[Session], T], *, exclusive: str | None = None) -> T:
+        """Run ``build`` in its own session and commit, retried when the database is locked.
+        ``exclusive`` names a lock the transaction holds from its start (:meth:`hold`)."""
 
         @retry_locked
         def attempt() -> T:
             with self.session() as session:
+                if exclusive is not None:
+                    self.hold(session, exclusive)
                 return build(session)
 
         return attempt()
+
+    def freeing(self, run: Callable[[], T]) -> T:
+        """Run ``run``, a deletion in transactions of its own; if the disk is full, give back the
+        reserve and run it once more, then checkpoint the WAL into the database file
+        (``TRUNCATE``: the WAL's space is returned too)."""
+        try:
+            return run()
+        except DBAPIError as exc:
+            if unavailable_reason(exc) != DISK_FULL or not self.reserve.release():
+                raise
+        result = run()
+        try:
+            with self.engine.connect() as conn:
+                conn.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)")
+        except DBAPIError as exc:  # readers in the way: the next checkpoint does it
+            log.info("checkpoint after a deletion on a full disk: %s", type(exc).__name__)
+        return result
+
+    def hold(self, session: Session, name: str) -> None:
+        """Take the lock ``name`` for the rest of ``session``'s transaction (first thing in it):
+        transactions that hold the same lock run one at a time, so what one reads (a count) stays
+        true until it commits. SQLite: ``BEGIN IMMEDIATE`` (the write lock, which serialises every
+        writer); PostgreSQL: a transaction-level advisory lock (only these transactions wait)."""
+        backend = self.engine.dialect.name
+        if backend == "sqlite":
+            session.connection().exec_driver_sql("BEGIN IMMEDIATE")
+        elif backend == "postgresql":
+            key = int.from_bytes(hashlib.sha256(name.encode()).digest()[:8], "big", signed=True)
+            session.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": key})
+        else:  # pragma: no cover - only SQLite and PostgreSQL are supported
+            raise NotImplementedError(f"no exclusive transactions on {backend}")
 
     def dispose(self) -> None:
         self.engine.dispose()

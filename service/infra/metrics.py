@@ -86,6 +86,17 @@ PLAN_SECONDS = Histogram(
     buckets=PLAN_BUCKETS,
     registry=None,
 )
+EVENT_STREAMS_OPEN = Gauge("spacearm_event_streams_open", "job event streams open in this API process", registry=None)
+EVENT_STREAMS_REFUSED = Counter(
+    "spacearm_event_streams_refused",
+    "job event streams refused with 503 by this API process (SPACEARM_MAX_EVENT_STREAMS open already)",
+    registry=None,
+)
+EVENT_STREAM_POLLS = Counter(
+    "spacearm_event_stream_polls",
+    "database reads of the job event streams of this API process (one per job every 0.5 s, however many listen)",
+    registry=None,
+)
 #: The per-process metrics (registered in every app's registry, see :func:`registry_for`).
 PER_PROCESS: tuple[Collector, ...] = (
     HTTP_REQUESTS,
@@ -93,6 +104,9 @@ PER_PROCESS: tuple[Collector, ...] = (
     HTTP_IN_PROGRESS,
     PLANS,
     PLAN_SECONDS,
+    EVENT_STREAMS_OPEN,
+    EVENT_STREAMS_REFUSED,
+    EVENT_STREAM_POLLS,
     PROCESS_COLLECTOR,
     PLATFORM_COLLECTOR,
     GC_COLLECTOR,

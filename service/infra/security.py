@@ -1,6 +1,9 @@
 """Guards in front of the routers (pure ASGI middleware, so they cover every router, present and
 future):
 
+- ``TrustedHostMiddleware`` (Starlette's): only the ``Host`` names of ``SPACEARM_ALLOWED_HOSTS``
+  (default: the bind address and localhost) are answered, others get 400, so a web page whose
+  name was rebound to this machine's address (DNS rebinding) cannot drive the API.
 - ``BodyLimitMiddleware``: request bodies over ``SPACEARM_MAX_BODY_BYTES`` (1 MiB) get 413, from
   ``Content-Length`` before anything is read, and by counting the bytes as they arrive when there
   is no ``Content-Length`` (chunked uploads).
@@ -8,7 +11,7 @@ future):
   ``/metrics``) needs ``Authorization: Bearer <key>`` (401 with ``WWW-Authenticate: Bearer``
   otherwise); the web
   pages need a sign-in session (``POST /login``, :mod:`service.infra.sessions`; GETs under ``/v1``
-  accept it too). Keys are compared with :func:`hmac.compare_digest` against every configured
+  accept it too, ``/metrics`` does not). Keys are compared with :func:`hmac.compare_digest` against every configured
   key and never logged. ``/healthz``, ``/readyz``, ``/openapi.json``, ``/docs``, ``/static`` and
   ``/login`` stay open.
 - ``MethodsMiddleware`` (:mod:`service.infra.http`): HEAD and OPTIONS everywhere, complete ``Allow``.
@@ -16,7 +19,8 @@ future):
   may call the API. It answers preflights itself, outside the bearer check (a preflight carries no
   credentials) and outside ``MethodsMiddleware`` (which answers a plain ``OPTIONS`` with ``Allow``
   and leaves preflights alone). No cookies cross origins: a key is sent as a bearer header.
-- ``SecurityHeadersMiddleware``: nosniff everywhere; CSP, no framing and no referrer on pages.
+- ``SecurityHeadersMiddleware``: nosniff everywhere; CSP, no framing, no referrer and no caching
+  (the pages carry CSRF tokens) on pages.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from urllib.parse import quote
 import anyio
 from fastapi import FastAPI
 from starlette.middleware.cors import CORSMiddleware
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.responses import RedirectResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -133,8 +138,8 @@ class BearerAuthMiddleware:
             await self.app(scope, receive, send)
             return
         # A sign-in session opens the pages, and reads under /v1 (the pages' figures and job
-        # progress); writes under /v1 need the Authorization header.
-        read = scope.get("method") in ("GET", "HEAD")
+        # progress); writes under /v1, and /metrics, need the Authorization header.
+        read = scope.get("method") in ("GET", "HEAD") and path != "/metrics"
         cookie = cookie_value(scope, SESSION_COOKIE)
         if cookie and (web or read):
             db = scope["app"].state.db
@@ -178,9 +183,10 @@ CSP = page_csp()
 
 class SecurityHeadersMiddleware:
     """``X-Content-Type-Options: nosniff`` on every response; on HTML pages also the CSP,
-    ``X-Frame-Options: DENY`` and ``Referrer-Policy: same-origin`` (a page never leaks its URL,
+    ``X-Frame-Options: DENY``, ``Referrer-Policy: same-origin`` (a page never leaks its URL,
     which may hold ids, to another site; ``no-referrer`` would also blank the ``Origin`` of the
-    pages' own form posts, which the CSRF check reads)."""
+    pages' own form posts, which the CSRF check reads) and ``Cache-Control: no-store`` (a page
+    holds its form's CSRF token: no cache, shared or not, keeps it)."""
 
     def __init__(self, app: ASGIApp, csp: str = CSP) -> None:
         self.app = app
@@ -199,6 +205,7 @@ class SecurityHeadersMiddleware:
                 content_type = next((v for k, v in headers if k.lower() == b"content-type"), b"")
                 if content_type.startswith(b"text/html"):
                     extra += [(b"x-frame-options", b"DENY"), (b"referrer-policy", b"same-origin")]
+                    extra.append((b"cache-control", b"no-store"))
                     if b"content-security-policy" not in names:
                         extra.append((b"content-security-policy", self.csp))
                 message = dict(message, headers=headers + [(k, v) for k, v in extra if k not in names])
@@ -233,7 +240,11 @@ def install(app: FastAPI, settings: Settings) -> None:
             max_age=600,
         )
         log.info("CORS is on for %s", ", ".join(origins))
+    hosts = settings.allowed_host_list()
+    app.add_middleware(TrustedHostMiddleware, allowed_hosts=hosts, www_redirect=False)
     app.add_middleware(SecurityHeadersMiddleware)
+    if "*" not in hosts:
+        log.info("answering the Host names %s (SPACEARM_ALLOWED_HOSTS)", ", ".join(hosts))
     if keys:
         log.info("authentication is on: /v1 requires a bearer key (%d key(s) configured)", len(keys))
     else:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import socket
 from functools import lru_cache
 from typing import Literal
 
@@ -79,6 +80,35 @@ class Settings(BaseSettings):
         description="finished tuning jobs and plans older than this many days are deleted; unset: kept for ever",
     )
     retention_sweep_s: float = Field(default=600.0, gt=0, description="how often the API looks for expired jobs and plans")
+    allowed_hosts: str = Field(
+        default="",
+        max_length=10_000,
+        description="comma-separated host names and addresses the API answers in the Host header (`*.example.com` "
+        "patterns, or `*` for any); empty: the bind address, localhost, 127.0.0.1 and ::1 (and the machine's name when "
+        "bound to every address); other Host headers get 400 (DNS rebinding)",
+    )
+    login_attempts_per_minute: int = Field(
+        default=10, ge=1, le=100_000, description="POST /login attempts per client address per minute; beyond, 429"
+    )
+    max_event_streams: int = Field(
+        default=500, ge=1, le=100_000, description="job event streams open at once per API process; beyond, 503"
+    )
+    max_connections: int | None = Field(
+        default=None,
+        ge=1,
+        le=1_000_000,
+        description="open HTTP connections per API process; beyond, a new one gets 503 and is closed; default: 1000, "
+        "fewer when the file-descriptor limit (ulimit -n) is lower",
+    )
+    header_timeout_s: float = Field(
+        default=10.0, gt=0, le=3600, description="time a client has to send a request's line and headers"
+    )
+    body_timeout_s: float = Field(
+        default=20.0, gt=0, le=3600, description="time a client has to send a request's body, plus a second per body_min_rate"
+    )
+    body_min_rate: int = Field(
+        default=10_000, ge=1, le=1 << 30, description="bytes per second a slow body must keep up beyond body_timeout_s"
+    )
     cors_origins: str = Field(
         default="",
         max_length=10_000,
@@ -96,6 +126,19 @@ class Settings(BaseSettings):
 
     def plan_slots(self) -> int:
         return self.max_concurrent_plans or max(1, os.cpu_count() or 1)
+
+    def allowed_host_list(self) -> list[str]:
+        """The Host headers the API answers (``*`` for any); see :attr:`allowed_hosts`."""
+        given = [h.strip().lower() for h in self.allowed_hosts.split(",") if h.strip()]
+        if given:
+            return given
+        local = ["localhost", "127.0.0.1", "[::1]"]
+        host = self.host.strip().lower()
+        if host in ("", "0.0.0.0", "::", "[::]"):  # every address: the machine's own names too
+            names = {socket.gethostname().lower(), socket.getfqdn().lower()}
+            return local + sorted(n for n in names if n and n not in local)
+        bound = f"[{host}]" if ":" in host and not host.startswith("[") else host
+        return local if bound in local else [bound, *local]
 
     def cors_origin_list(self) -> list[str]:
         """The origins CORS allows (empty: CORS is off); without a trailing slash, as browsers send them."""

@@ -1,4 +1,4 @@
-"""Figures of plans and tuning jobs (SVG or PNG, rendered by :mod:`service.figures`).
+"""Figures of plans and tuning jobs (SVG, PNG at a chosen ``dpi``, or PDF; rendered by :mod:`service.figures`).
 
 Plan and job ids are matched as 32 hex digits (``{plan_id:id}``), so
 ``/v1/plans/compare/figures/tracking-errors`` is never read as the figure of a plan ``compare``."""
@@ -11,7 +11,18 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
 from service import figures
-from service.deps import IMAGE_RESPONSES, Format, JobId, PlanId, SessionRoute, UnknownFigureError, figure_name, image_response
+from service.deps import (
+    IMAGE_RESPONSES,
+    Dpi,
+    Format,
+    JobId,
+    PlanId,
+    SessionRoute,
+    UnknownFigureError,
+    figure_dpi,
+    figure_name,
+    image_response,
+)
 from service.errors import responses
 from service.usecases import figures as figure_cases
 
@@ -21,9 +32,10 @@ router = APIRouter(tags=["figures"], route_class=SessionRoute)
 @router.get(
     "/v1/plans/compare/figures/{name}",
     operation_id="compare_plans_figure",
-    summary="Several plans on one figure (e.g. DLS versus GA-tuned adaptive damping)",
-    description="`ids` is a comma-separated list of plan ids (at most 8). Names: "
-    + ", ".join(f"`{n}`" for n in figures.COMPARE_FIGURES),
+    summary="Several plans on one figure (e.g. DLS versus GA-tuned adaptive damping, the paper's Fig. 9)",
+    description="`ids` is a comma-separated list of plan ids (at most 8). Every plan figure compares: the plans side by "
+    "side, one column each (titled by its method and id) on shared y axes; `tracking-errors` overlays the plans' error "
+    "norms on one pair of axes. Names: " + ", ".join(f"`{n}`" for n in figures.COMPARE_FIGURES),
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
@@ -32,16 +44,17 @@ async def compare_plans_figure(
     request: Request,
     ids: Annotated[str, Query(description="comma-separated plan ids", min_length=1, max_length=2000)],
     format: Format = "svg",
+    dpi: Dpi = None,
 ) -> Response:
     async with request.app.state.figure_admission.slot():
-        response: Response = await run_in_threadpool(_compare_plans_figure, name, request, ids, format)
+        response: Response = await run_in_threadpool(_compare_plans_figure, name, request, ids, format, figure_dpi(format, dpi))
         return response
 
 
-def _compare_plans_figure(name: str, request: Request, ids: str, format: str) -> Response:
+def _compare_plans_figure(name: str, request: Request, ids: str, format: str, dpi: int | None) -> Response:
     if name not in figures.COMPARE_FIGURES:
         raise UnknownFigureError(name, figures.COMPARE_FIGURES)
-    content, hit = figure_cases.compare_figure(request.app.state.db, name, ids, format)
+    content, hit = figure_cases.compare_figure(request.app.state.db, name, ids, format, dpi)
     return image_response(request, content, format, hit, immutable=True)
 
 
@@ -58,17 +71,21 @@ def _compare_plans_figure(name: str, request: Request, ids: str, format: str) ->
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
 async def get_plan_figure(
-    plan_id: PlanId, name: Annotated[str, figure_name(list(figures.PLAN_FIGURES))], request: Request, format: Format = "svg"
+    plan_id: PlanId,
+    name: Annotated[str, figure_name(list(figures.PLAN_FIGURES))],
+    request: Request,
+    format: Format = "svg",
+    dpi: Dpi = None,
 ) -> Response:
     if name not in figures.PLAN_FIGURES:
         raise UnknownFigureError(name, list(figures.PLAN_FIGURES))
     async with request.app.state.figure_admission.slot():
-        response: Response = await run_in_threadpool(_plan_figure, plan_id, name, request, format)
+        response: Response = await run_in_threadpool(_plan_figure, plan_id, name, request, format, figure_dpi(format, dpi))
         return response
 
 
-def _plan_figure(plan_id: PlanId, name: str, request: Request, format: str) -> Response:
-    content, hit = figure_cases.plan_figure(request.app.state.db, plan_id, name, format)
+def _plan_figure(plan_id: PlanId, name: str, request: Request, format: str, dpi: int | None) -> Response:
+    content, hit = figure_cases.plan_figure(request.app.state.db, plan_id, name, format, dpi)
     return image_response(request, content, format, hit, immutable=True)
 
 
@@ -81,15 +98,19 @@ def _plan_figure(plan_id: PlanId, name: str, request: Request, format: str) -> R
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
 async def get_tuning_job_figure(
-    job_id: JobId, name: Annotated[str, figure_name(figures.JOB_FIGURES)], request: Request, format: Format = "svg"
+    job_id: JobId,
+    name: Annotated[str, figure_name(figures.JOB_FIGURES)],
+    request: Request,
+    format: Format = "svg",
+    dpi: Dpi = None,
 ) -> Response:
     if name not in figures.JOB_FIGURES:
         raise UnknownFigureError(name, figures.JOB_FIGURES)
     async with request.app.state.figure_admission.slot():
-        response: Response = await run_in_threadpool(_job_figure, job_id, name, request, format)
+        response: Response = await run_in_threadpool(_job_figure, job_id, name, request, format, figure_dpi(format, dpi))
         return response
 
 
-def _job_figure(job_id: JobId, name: str, request: Request, format: str) -> Response:
-    content, hit = figure_cases.job_figure(request.app.state.db, job_id, name, format)
+def _job_figure(job_id: JobId, name: str, request: Request, format: str, dpi: int | None) -> Response:
+    content, hit = figure_cases.job_figure(request.app.state.db, job_id, name, format, dpi)
     return image_response(request, content, format, hit, immutable=False)

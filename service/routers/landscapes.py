@@ -9,11 +9,14 @@ from fastapi.concurrency import run_in_threadpool
 
 from service.deps import (
     IMAGE_RESPONSES,
+    DbDep,
+    Dpi,
     Format,
     LandscapeId,
     SessionDep,
     SessionRoute,
     SettingsDep,
+    figure_dpi,
     image_response,
     run_admitted,
 )
@@ -70,8 +73,8 @@ def get_landscape(landscape_id: LandscapeId, session: SessionDep) -> Response:
     description="204 once deleted; 404 for an unknown id.",
     responses=responses(404),
 )
-def delete_landscape(landscape_id: LandscapeId, session: SessionDep) -> Response:
-    landscapes.delete(session, landscape_id)
+def delete_landscape(landscape_id: LandscapeId, db: DbDep) -> Response:
+    landscapes.delete(db, landscape_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
@@ -85,12 +88,12 @@ def delete_landscape(landscape_id: LandscapeId, session: SessionDep) -> Response
     response_class=Response,
     responses={**IMAGE_RESPONSES, **responses(404, 422)},
 )
-async def get_landscape_heatmap(landscape_id: LandscapeId, request: Request, format: Format = "svg") -> Response:
+async def get_landscape_heatmap(landscape_id: LandscapeId, request: Request, format: Format = "svg", dpi: Dpi = None) -> Response:
     async with request.app.state.figure_admission.slot():
-        response: Response = await run_in_threadpool(_heatmap, request, landscape_id, format)
+        response: Response = await run_in_threadpool(_heatmap, request, landscape_id, format, figure_dpi(format, dpi))
         return response
 
 
-def _heatmap(request: Request, landscape_id: str, format: str) -> Response:
-    content, hit = landscapes.heatmap(request.app.state.db, landscape_id, format)
+def _heatmap(request: Request, landscape_id: str, format: str, dpi: int | None) -> Response:
+    content, hit = landscapes.heatmap(request.app.state.db, landscape_id, format, dpi)
     return image_response(request, content, format, hit, immutable=True)

@@ -10,15 +10,45 @@ sections."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request, Response, status
+from typing import Annotated, Any
 
-from service.deps import FieldsQuery, Limit, Offset, PlanId, SessionDep, SessionRoute, SettingsDep, run_admitted
-from service.errors import responses
+from fastapi import APIRouter, Body, Query, Request, Response, status
+
+from service.deps import (
+    DbDep,
+    FieldsQuery,
+    JsonOnly,
+    Limit,
+    Offset,
+    PlanId,
+    SessionDep,
+    SessionRoute,
+    SettingsDep,
+    negotiate,
+    one_of_body,
+    run_admitted,
+    schema_ref,
+)
+from service.errors import NotAcceptableError, responses
 from service.infra.db import Database
-from service.schemas.plans import PlanList, PlanOut, PlanRequest
-from service.usecases import plans
+from service.schemas.methods import MethodName
+from service.schemas.plans import PathTypeName, PlanList, PlanOut, PlanRequest, PlanRerun, Trajectory
+from service.schemas.trajectories import MEDIA_TYPES, RosJointTrajectory, TrajectoryFormat
+from service.usecases import plans, trajectories
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"], route_class=SessionRoute)
+
+
+CREATE_PLAN_BODY = one_of_body(
+    (PlanRequest, PlanRerun),
+    {
+        "plan": {"summary": "a plan request", "value": PlanRequest.model_config["json_schema_extra"]["examples"][0]},  # type: ignore[index]
+        "rerun": {
+            "summary": "a stored plan again, with changes (a JSON merge patch of its request)",
+            "value": PlanRerun.model_config["json_schema_extra"]["examples"][0],  # type: ignore[index]
+        },
+    },
+)
 
 
 @router.post(
@@ -30,16 +60,25 @@ router = APIRouter(prefix="/v1/plans", tags=["plans"], route_class=SessionRoute)
     description="Plans the task with the robust inverse given (the base moving freely, momentum conserved), replays "
     "it independently if `replay` is true, stores it and answers 201 with the plan and its `Location`. A plan that "
     "fails (diverges, breaks the joint speed limit, leaves the path) is still a result: `success` is false and "
-    "`message` says where and why. Plans run a few at a time per API process; beyond a short queue the answer is "
-    "503 with `Retry-After`. `fields` chooses the sections of the answer.",
-    responses=responses(404, 422),
+    "`message` says where and why. The body is a plan request (`PlanRequest`), or a stored plan's id as "
+    "`from_plan_id` with changes (`PlanRerun`: merged into that plan's stored request as a JSON merge patch, RFC "
+    "7396, a changed path `type` or method `name` replacing the object whole). "
+    "Plans run a few at a time per API process; beyond a short queue the answer is "
+    "503 with `Retry-After`. `fields` chooses the sections of the answer. The answer is JSON: an `Accept` without "
+    "it is a 406 (the trajectory in other formats: `GET /v1/plans/{plan_id}/trajectory`).",
+    responses=responses(404, 406, 422),
+    dependencies=[JsonOnly],
+    openapi_extra=CREATE_PLAN_BODY,
 )
-async def create_plan(body: PlanRequest, request: Request, settings: SettingsDep, fields: FieldsQuery = None) -> Response:
+async def create_plan(
+    request: Request, settings: SettingsDep, body: dict[str, Any] = Body(...), fields: FieldsQuery = None
+) -> Response:
     sections = plans.parse_sections(fields)
     db: Database = request.app.state.db
 
     def work() -> Response:
-        row = plans.store(db, settings, planned := plans.compute(db, settings, body))
+        asked = plans.request_of(db, body)
+        row = plans.store(db, settings, planned := plans.compute(db, settings, asked))
         content = plans.body_json(plans.summary(row), sections, planned.record, row.replay)
         return Response(content, status_code=201, media_type="application/json", headers={"Location": f"/v1/plans/{row.id}"})
 
@@ -51,11 +90,22 @@ async def create_plan(body: PlanRequest, request: Request, settings: SettingsDep
     operation_id="list_plans",
     response_model=PlanList,
     summary="List stored plans (without trajectories)",
-    description="Stored plans, newest first, `limit` at a time from `offset`: each plan's summary (method, verdict, "
-    "metrics); `total` counts them all.",
+    description="Stored plans, newest first, `limit` at a time from `offset`: each plan's summary (its request, "
+    "method, verdict, metrics); `total` counts those the filters keep. Filters (all optional, combined with and): "
+    "`robot_id`, `path_type` (the task's path; plans stored before paths existed are lines), `method` (the inverse's "
+    "name), `success`.",
+    responses=responses(422),
 )
-def list_plans(session: SessionDep, limit: Limit = 50, offset: Offset = 0) -> PlanList:
-    return plans.listing(session, limit, offset)
+def list_plans(
+    session: SessionDep,
+    limit: Limit = 50,
+    offset: Offset = 0,
+    robot_id: Annotated[str | None, Query(max_length=64, description="only plans for this stored robot")] = None,
+    path_type: Annotated[PathTypeName | None, Query(description="only plans whose task follows this path type")] = None,
+    method: Annotated[MethodName | None, Query(description="only plans with this inverse method")] = None,
+    success: Annotated[bool | None, Query(description="only successful (true) or failed (false) plans")] = None,
+) -> PlanList:
+    return plans.listing(session, limit, offset, plans.PlanFilter(robot_id, path_type, method, success))
 
 
 @router.get(
@@ -64,11 +114,75 @@ def list_plans(session: SessionDep, limit: Limit = 50, offset: Offset = 0) -> Pl
     response_model=PlanOut,
     summary="Get a stored plan",
     description="A stored plan as `POST /v1/plans` answered it; `fields` chooses the sections (`fields=` for the "
-    "summary only, `fields=replay` without the trajectory).",
-    responses=responses(404, 422),
+    "summary only, `fields=replay` without the trajectory). The answer is JSON: an `Accept` without it (`text/csv`, "
+    "say) is a 406 that points to `GET /v1/plans/{plan_id}/trajectory`, which exports CSV, MAT, NPZ and ROS.",
+    responses=responses(404, 406, 422),
+    dependencies=[JsonOnly],
 )
 def get_plan(plan_id: PlanId, session: SessionDep, fields: FieldsQuery = None) -> Response:
     return Response(plans.read(session, plan_id, plans.parse_sections(fields)), media_type="application/json")
+
+
+TRAJECTORY_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "the trajectory in the format asked for",
+        # A binary type first: generators that read one media type per response (openapi-python-client
+        # takes the first) then answer every format as bytes, instead of failing to parse CSV as JSON.
+        "content": {
+            MEDIA_TYPES["mat"]: {"schema": {"type": "string", "format": "binary"}},
+            MEDIA_TYPES["npz"]: {"schema": {"type": "string", "format": "binary"}},
+            MEDIA_TYPES["json"]: {"schema": schema_ref(Trajectory)},
+            MEDIA_TYPES["csv"]: {"schema": {"type": "string"}},
+            # RosJointTrajectory is added to the document's components by service.openapi (BODY_MODELS)
+            MEDIA_TYPES["ros"]: {"schema": schema_ref(RosJointTrajectory)},
+        },
+        "headers": {
+            "Content-Disposition": {
+                "description": '`attachment; filename="plan-<id>.<ext>"`',
+                "schema": {"type": "string"},
+            }
+        },
+    },
+    **responses(404, 406, 409),
+}
+
+
+@router.get(
+    "/{plan_id:id}/trajectory",
+    operation_id="get_plan_trajectory",
+    summary="Export a stored plan's trajectory: JSON, CSV, MATLAB/Octave .mat, numpy .npz or a ROS 2 JointTrajectory",
+    description="`format` chooses the format; without it, `Accept` does: "
+    + ", ".join(f"`{fmt}` {media}" for fmt, media in MEDIA_TYPES.items())
+    + " (no `Accept`, or `*/*`: JSON). An `Accept` that names none of them, without `format`, is a 406 whose "
+    "`available` lists them. `json` is the plan's `trajectory` section; `csv` has one header row (each column one "
+    "component of one of those arrays, its name carrying its unit: `t_s`, `joint_angles_deg[joint1]`, "
+    "`base_position_m[x]`, `ee_attitude_quaternion[w]`, ...) and one row per sample, empty where a value is not "
+    "finite; `mat` (MATLAB 5, `load` in MATLAB or Octave) and `npz` hold the same arrays under the same names, plus "
+    "`joint_names`; `ros` is a `trajectory_msgs/JointTrajectory` as JSON (SI units: rad, m, rad/s, m/s; "
+    "`time_from_start` as `sec`/`nanosec`); a plan that diverged has none (409).",
+    response_class=Response,
+    responses=TRAJECTORY_RESPONSES,
+)
+def get_plan_trajectory(
+    plan_id: PlanId,
+    request: Request,
+    session: SessionDep,
+    format: Annotated[
+        TrajectoryFormat | None, Query(description="the format (wins over `Accept`): json, csv, mat, npz or ros")
+    ] = None,
+) -> Response:
+    if format is None:
+        media = negotiate(request.headers.get("accept"), list(MEDIA_TYPES.values()))
+        if media is None:
+            raise NotAcceptableError(
+                f"{request.headers.get('accept')!r} not available: the trajectory is "
+                + ", ".join(f"{media} (format={fmt})" for fmt, media in MEDIA_TYPES.items()),
+                list(MEDIA_TYPES.values()),
+            )
+        format = next(fmt for fmt, m in MEDIA_TYPES.items() if m == media)  # type: ignore[misc]
+    out = trajectories.export(session, plan_id, str(format))
+    headers = {"Content-Disposition": f'attachment; filename="{out.filename}"', "Vary": "Accept"}
+    return Response(out.content, media_type=out.media_type, headers=headers)
 
 
 @router.delete(
@@ -79,6 +193,6 @@ def get_plan(plan_id: PlanId, session: SessionDep, fields: FieldsQuery = None) -
     description="204 once deleted; 404 for an unknown id. Its figures are no longer served.",
     responses=responses(404),
 )
-def delete_plan(plan_id: PlanId, session: SessionDep) -> Response:
-    plans.delete(session, plan_id)
+def delete_plan(plan_id: PlanId, db: DbDep) -> Response:
+    plans.delete(db, plan_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

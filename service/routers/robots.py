@@ -1,16 +1,17 @@
 """Robots: stored parameter sets (given as such, or derived from a URDF), their URDF, and the
-generalized Jacobian at a state."""
+generalized Jacobian at a state. A URDF upload is read behind the plan admission, like a plan
+(reading one costs up to a few hundred milliseconds of CPU)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, Body, Response, status
-from fastapi.exceptions import RequestValidationError
+from fastapi import APIRouter, Body, Request, Response, status
+from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 
-from service.deps import Limit, Offset, RobotId, SessionDep, SessionRoute, SettingsDep
-from service.errors import responses
+from service.deps import DbDep, Limit, Offset, RobotId, SessionDep, SessionRoute, SettingsDep, one_of_body, run_admitted
+from service.errors import body_invalid, responses
 from service.schemas.robots import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams, RobotUrdfIn
 from service.usecases import robots
 
@@ -30,27 +31,15 @@ def list_robots(session: SessionDep, limit: Limit = 50, offset: Offset = 0) -> R
     return robots.listing(session, limit, offset)
 
 
-def _schema_ref(model: type) -> dict[str, str]:
-    return {"$ref": f"#/components/schemas/{model.__name__}"}
-
-
-CREATE_ROBOT_BODY: dict[str, Any] = {
-    "requestBody": {
-        "required": True,
-        "content": {
-            "application/json": {
-                # RobotUrdfIn is added to the document's components by service.openapi (BODY_MODELS)
-                "schema": {"oneOf": [_schema_ref(RobotParams), _schema_ref(RobotUrdfIn)]},
-                "examples": {
-                    "urdf": {
-                        "summary": "a URDF robot (the URDF as text in the `urdf` field)",
-                        "value": {"urdf": "<robot name='my-arm'>...</robot>", "end_effector_link": "tool0"},
-                    }
-                },
-            }
-        },
-    }
-}
+CREATE_ROBOT_BODY = one_of_body(
+    (RobotParams, RobotUrdfIn),
+    {
+        "urdf": {
+            "summary": "a URDF robot (the URDF as text in the `urdf` field)",
+            "value": {"urdf": "<robot name='my-arm'>...</robot>", "end_effector_link": "tool0"},
+        }
+    },
+)
 
 
 def _validated(body: dict[str, Any]) -> RobotParams | RobotUrdfIn:
@@ -58,7 +47,7 @@ def _validated(body: dict[str, Any]) -> RobotParams | RobotUrdfIn:
     try:
         return robots.parameters_of(body).model_validate(body)
     except ValidationError as exc:
-        raise RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]) from None
+        raise body_invalid(exc) from None
 
 
 @router.post(
@@ -66,18 +55,29 @@ def _validated(body: dict[str, Any]) -> RobotParams | RobotUrdfIn:
     operation_id="create_robot",
     response_model=RobotOut,
     status_code=status.HTTP_201_CREATED,
-    summary="Store a robot: a parameter set (schema of robot-table1.yaml, SI units) or a URDF (JSON field `urdf`)",
+    summary="Store a robot: a parameter set (schema of engine/data/table1_robot.json, SI units) or a URDF (JSON field `urdf`)",
     description="The body is either a parameter set (`RobotParams`) or a URDF document as text in the field `urdf`, "
     "with `end_effector_link` and an optional tool offset (`RobotUrdfIn`). A URDF robot is stored as the parameter set "
     "derived from it (shown in the response); a URDF the service cannot use is a 422 whose `element` names the URDF "
     "element at fault. The parameters are checked as the engine needs them (masses positive, inertias symmetric "
     "positive definite and physical, joint axes and rotations valid; a 422 names the field, e.g. "
-    "`body.links[2].inertia`) and the joint axes normalised; 201 with the robot and its `Location`.",
+    "`body.links[2].inertia`) and the joint axes normalised; 201 with the robot and its `Location`. The bounds and "
+    "messages are the same for a URDF's derived parameters (a 422 at `body.urdf` naming the link). A URDF is read "
+    "behind the plan admission (503 with `Retry-After` when it is full).",
     responses=responses(422),
     openapi_extra=CREATE_ROBOT_BODY,
 )
-def create_robot(session: SessionDep, settings: SettingsDep, response: Response, body: dict[str, Any] = Body(...)) -> RobotOut:
-    created = robots.create(session, settings.storage_quota_bytes, _validated(body))
+async def create_robot(request: Request, settings: SettingsDep, response: Response, body: dict[str, Any] = Body(...)) -> RobotOut:
+    validated = _validated(body)
+
+    def work() -> RobotOut:
+        with request.app.state.db.session() as session:
+            return robots.create(session, settings.storage_quota_bytes, validated)
+
+    if isinstance(validated, RobotUrdfIn):
+        created = await run_admitted(request, work, "plans and URDF uploads")
+    else:
+        created = await run_in_threadpool(work)
     response.headers["Location"] = f"/v1/robots/{created.id}"
     return created
 
@@ -87,8 +87,9 @@ def create_robot(session: SessionDep, settings: SettingsDep, response: Response,
     operation_id="get_robot",
     response_model=RobotOut,
     summary="Get a robot",
-    description="A stored robot and its parameter set; `table1` is the paper's Table-1 robot.",
-    responses=responses(404),
+    description="A stored robot and its parameter set; `table1` is the paper's Table-1 robot. A robot stored by an "
+    "older version with parameters this one refuses is a 409 that says why (delete it and store it again).",
+    responses=responses(404, 409),
 )
 def get_robot(robot_id: RobotId, session: SessionDep) -> RobotOut:
     return robots.view(robots.load(session, robot_id))
@@ -103,7 +104,7 @@ def get_robot(robot_id: RobotId, session: SessionDep) -> RobotOut:
     response_class=Response,
     responses={
         200: {"description": "URDF (XML)", "content": {"application/xml": {"schema": {"type": "string"}}}},
-        **responses(404),
+        **responses(404, 409),
     },
 )
 def get_robot_urdf(robot_id: RobotId, session: SessionDep) -> Response:
@@ -119,8 +120,8 @@ def get_robot_urdf(robot_id: RobotId, session: SessionDep) -> Response:
     "for the robot fails when a worker takes it. Deleting a preset is a 409.",
     responses=responses(404, 409),
 )
-def delete_robot(robot_id: RobotId, session: SessionDep) -> Response:
-    robots.delete(session, robot_id)
+def delete_robot(robot_id: RobotId, db: DbDep) -> Response:
+    robots.delete(db, robot_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
@@ -131,8 +132,9 @@ def delete_robot(robot_id: RobotId, session: SessionDep) -> Response:
     summary="Generalized Jacobian (GJM) and end-effector pose at a state",
     description="The GJM of the free-floating robot (the base's reaction included, zero momentum) at the joint angles "
     "and base pose given, with its singular values, determinant, manipulability and condition number, and the "
-    "end-effector pose. Nothing is stored.",
-    responses=responses(404, 422),
+    "end-effector pose. Nothing is stored. A GJM that is not finite at that state (masses too small for double "
+    "precision) is a 422 that says so.",
+    responses=responses(404, 409, 422),
 )
 def compute_jacobian(robot_id: RobotId, body: JacobianRequest, session: SessionDep) -> JacobianOut:
     return robots.jacobian(session, robot_id, body)

@@ -7,7 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request, Response, status
 
-from service.deps import JobId, Limit, Offset, SessionDep, SessionRoute, SettingsDep
+from service.deps import DbDep, JobId, Limit, Offset, SessionDep, SessionRoute, SettingsDep
 from service.errors import responses
 from service.schemas.common import JobStatus
 from service.schemas.tuning import TuningJobList, TuningJobOut, TuningJobRequest, TuningJobResult
@@ -26,7 +26,7 @@ router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"], route_class=Sessio
     description="Returns 202 with `Location` of the job. Send `Idempotency-Key` to make retries safe: "
     "the same key with the same body returns the same job; the same key with another body is a 422. "
     "A job is bounded by its work: at most 200,000 plan evaluations "
-    "(population * (generations + 1) * tasks, twice with `compare_with_dls`) and at most "
+    "(population * (generations + 1) * tasks, once more for each of `compare_with_dls` and `compare_with_bounded`) and at most "
     f"{MAX_JOB_JOINT_STEPS:.2g} joint-steps (the same times the plan-steps of the tasks times the robot's joints; "
     "about a microsecond each); 429 with `Retry-After` when `SPACEARM_MAX_QUEUED_JOBS` jobs are already queued.",
     responses=responses(404, 422),
@@ -88,10 +88,14 @@ def get_tuning_job(job_id: JobId, session: SessionDep) -> TuningJobOut:
     operation_id="get_tuning_job_result",
     response_model=TuningJobResult,
     response_model_by_alias=True,
-    summary="Result of a succeeded tuning job (409 until then)",
+    summary="Result of a succeeded tuning job, or the best-so-far of a cancelled one (409 otherwise)",
     description="The tuned parameters, their B and metrics per task, the GA's history per generation and, with "
-    "`compare_with_dls`, the tuned DLS baseline and the improvement over it. A 409 until the job has succeeded "
-    "(its `detail` says the job's status and error).",
+    "`compare_with_dls`, the tuned DLS baseline and the improvement over it; with `compare_with_bounded`, the "
+    "tuned bounded inverse (the third row). `status` says whether the GA ran every "
+    "generation (`succeeded`) or the job was cancelled (`cancelled`: the best parameters found by then, `message` "
+    "says how far each GA got; the baseline is null if its GA had not finished a generation). A 409 while the job is "
+    "queued or running, once it failed, and for a job cancelled before its GA finished a generation (`detail` says "
+    "the job's status and error).",
     responses=responses(404, 409),
 )
 def get_tuning_job_result(job_id: JobId, session: SessionDep) -> TuningJobResult:
@@ -103,9 +107,10 @@ def get_tuning_job_result(job_id: JobId, session: SessionDep) -> TuningJobResult
     operation_id="cancel_tuning_job",
     response_model=TuningJobOut,
     status_code=status.HTTP_202_ACCEPTED,
-    summary="Cancel a tuning job (a running one stops after its current generation)",
+    summary="Cancel a tuning job (a running one stops within a second or two and keeps its best-so-far result)",
     description="A queued job is cancelled at once; a running one stops within a second or two (the worker looks for "
-    "the request every second, inside a generation). 202 with the job (`cancel_requested` true); a job that "
+    "the request every second, inside a generation) and stores the best parameters found so far as its result "
+    "(`GET .../result`, `status` `cancelled`). 202 with the job (`cancel_requested` true); a job that "
     "already succeeded or failed is a 409.",
     responses=responses(404, 409),
 )
@@ -122,6 +127,6 @@ def cancel_tuning_job(job_id: JobId, session: SessionDep, request: Request) -> T
     "that the job is gone and stops its GA.",
     responses=responses(404),
 )
-def delete_tuning_job(job_id: JobId, session: SessionDep, request: Request) -> Response:
-    tuning_jobs.delete(request.app.state.db, session, job_id)
+def delete_tuning_job(job_id: JobId, db: DbDep) -> Response:
+    tuning_jobs.delete(db, job_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,13 +1,16 @@
-"""Server-rendered HTML pages (Jinja2, no external assets): the index at ``/`` with robots,
-recent plans and tuning jobs and the forms; a plan page with its metrics and figures; a job
-page with live progress (it polls the JSON API) and the convergence figure.
+"""Server-rendered HTML pages (Jinja2, no external assets): the index at ``/`` with robots
+(by name), recent plans and tuning jobs and the forms (plan, tune, upload a robot, compare two
+plans, delete); a plan page with its metrics, replay and figures; two plans compared
+(``/plans/compare``); a plan's interactive 3D view (``/plans/{id}/view``, three.js, with its
+scene at ``/plans/{id}/scene.json``); a job page with live progress (it follows the JSON API).
 
 The forms post to ``/web/...``; those handlers check the form's CSRF token and its ``Origin``
 (:func:`check_form`), then forward the request to the JSON API in-process
 (``httpx.ASGITransport`` on this same app), so the page goes through exactly the validation and
-limits of ``POST /v1/plans`` and ``POST /v1/tuning-jobs``. With keys configured, the pages need
-a sign-in session (:mod:`service.infra.sessions`). All routes here are left out of the OpenAPI
-document.
+limits of ``POST /v1/plans``, ``POST /v1/tuning-jobs``, ``POST /v1/robots`` and the ``DELETE``s.
+The API's errors come back next to the form's fields (:mod:`service.usecases.forms`). With keys
+configured, the pages need a sign-in session (:mod:`service.infra.sessions`). All routes here are
+left out of the OpenAPI document.
 
 CSRF: every form carries a token. Signed in, it is the session's own token (kept server-side);
 otherwise it is double-submitted: a random ``spacearm_csrf`` cookie (HttpOnly, SameSite=Strict)
@@ -18,26 +21,28 @@ from __future__ import annotations
 
 import hmac
 import json
-import math
 import secrets
+from pathlib import Path
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs, quote, urlsplit
 
 import httpx
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import HTMLResponse, RedirectResponse, Response
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, RedirectResponse, Response
+from starlette.datastructures import UploadFile
 
 from service import figures
 from service.deps import JobId, PlanId, SessionRoute, get_db
 from service.html import env
 from service.infra.logs import REQUEST_ID
 from service.infra.sessions import CSRF_COOKIE, SESSION_COOKIE, close_session, open_session
-from service.usecases import pages, presets
+from service.usecases import forms, pages, presets, scene
 
 router = APIRouter(include_in_schema=False, route_class=SessionRoute)
 
 FORWARDED_HEADERS = ("x-request-id",)
+FAVICON = Path(__file__).resolve().parents[1] / "static" / "favicon.ico"
 
 
 def page(name: str, status_code: int = 200, *, request: Request | None = None, **context: Any) -> HTMLResponse:
@@ -82,12 +87,45 @@ def rejected(request: Request, error: FormRejectedError) -> HTMLResponse:
 
 
 def index_context(request: Request) -> dict[str, Any]:
-    return {**pages.index(get_db(request)), "methods": pages.method_forms(), "presets": list(presets.PRESETS.values())}
+    db = get_db(request)
+    return {
+        **pages.index(db),
+        "robot_options": pages.robot_options(db),
+        "plan_choices": pages.plan_choices(db),
+        "figure_titles": figures.FIGURE_TITLES,
+        "methods": pages.method_forms(),
+        "presets": list(presets.PRESETS.values()),
+        "paper_values": pages.PAPER_VALUES,
+    }
+
+
+def index_page(request: Request, status_code: int = 200, **context: Any) -> HTMLResponse:
+    """The index with the forms' state: ``form``/``errors`` (plan form), ``job_errors``,
+    ``robot_form``/``robot_errors``, ``notice`` (an error of a delete)."""
+    defaults: dict[str, Any] = {"form": {}, "errors": forms.FormErrors(), "job_form": {}, "job_errors": forms.FormErrors()}
+    defaults |= {"robot_form": {}, "robot_errors": forms.FormErrors(), "notice": None}
+    return page("index.html", status_code, request=request, **(defaults | context), **index_context(request))
 
 
 @router.get("/", response_class=HTMLResponse)
 def index(request: Request) -> HTMLResponse:
-    return page("index.html", request=request, form={}, **index_context(request))
+    # The query may fill the plan form (a link to the paper's own values does).
+    return index_page(request, form=dict(request.query_params))
+
+
+@router.get("/favicon.ico")
+def favicon() -> FileResponse:
+    """The site's icon (browsers ask for it at this path, also on the API's JSON and docs)."""
+    return FileResponse(FAVICON, media_type="image/x-icon", headers={"Cache-Control": "public, max-age=86400"})
+
+
+def _plan_context(plan: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "plan": plan,
+        "metric_rows": pages.METRIC_ROWS,
+        "replay_rows": pages.REPLAY_ROWS,
+        "threshold": figures.singular_threshold(plan["method"]),
+    }
 
 
 @router.get("/plans/{plan_id:id}", response_class=HTMLResponse)
@@ -98,12 +136,54 @@ def plan_page(plan_id: PlanId, request: Request) -> HTMLResponse:
     return page(
         "plan.html",
         request=request,
-        plan=plan,
-        metric_rows=pages.METRIC_ROWS,
+        **_plan_context(plan),
         figure_names=list(figures.PLAN_FIGURES),
         figure_titles=figures.FIGURE_TITLES,
-        threshold=figures.singular_threshold(plan["method"]),
+        plan_choices=[c for c in pages.plan_choices(get_db(request)) if c["id"] != plan_id],
     )
+
+
+@router.get("/plans/compare", response_class=HTMLResponse)
+def compare_page(request: Request, a: str = "", b: str = "", figure: str = "joint-velocities") -> HTMLResponse:
+    """Two plans side by side: their metrics and replays in one table, and any figure of both
+    (``GET /v1/plans/compare/figures/{figure}``)."""
+    db = get_db(request)
+    choices = pages.plan_choices(db)
+    if not a and not b and len(choices) >= 2:  # the two latest plans
+        a, b = choices[1]["id"], choices[0]["id"]
+    ids = [i for i in (a.strip(), b.strip()) if i]
+    found = pages.compare(db, ids)
+    missing = [i for i in ids if i not in {p["id"] for p in found}]
+    context: dict[str, Any] = {
+        "plans": found,
+        "figure": figure if figure in figures.COMPARE_FIGURES else "joint-velocities",
+        "figure_titles": figures.FIGURE_TITLES,
+        "plan_choices": choices,
+        "a": a,
+        "b": b,
+        "metric_rows": pages.METRIC_ROWS,
+        "replay_rows": pages.REPLAY_ROWS,
+    }
+    if len(ids) != 2 or missing or a == b:
+        detail = "choose two different plans" if not missing else f"no plan {', '.join(map(repr, missing))}"
+        return page("compare.html", 404 if missing else 200, request=request, error=detail, **context)
+    return page("compare.html", request=request, error=None, **context)
+
+
+@router.get("/plans/{plan_id:id}/view", response_class=HTMLResponse)
+def view_page(plan_id: PlanId, request: Request) -> HTMLResponse:
+    """The plan's motion played back in 3D (``/static/view3d.js``: three.js, bundled offline)."""
+    plan = pages.plan(get_db(request), plan_id)
+    if plan is None:
+        return page("error.html", 404, request=request, title="Plan not found", detail=f"plan {plan_id!r} does not exist")
+    return page("view3d.html", request=request, plan=plan)
+
+
+@router.get("/plans/{plan_id:id}/scene.json")
+def scene_json(plan_id: PlanId, request: Request) -> JSONResponse:
+    """The 3D view's scene: the arm's joint positions per frame (forward kinematics on the
+    server), the carrier's box, obstacles (:mod:`service.usecases.scene`)."""
+    return JSONResponse(scene.scene(get_db(request), plan_id), headers={"Cache-Control": "public, max-age=86400"})
 
 
 @router.get("/jobs/{job_id:id}", response_class=HTMLResponse)
@@ -121,7 +201,7 @@ async def _form(request: Request) -> dict[str, str]:
     return {k: v[-1] for k, v in parse_qs(body, keep_blank_values=True).items()}
 
 
-async def _forward(request: Request, path: str, body: dict[str, Any]) -> httpx.Response:
+async def _forward(request: Request, method: str, path: str, body: dict[str, Any] | None = None) -> httpx.Response:
     headers = {k: v for k, v in request.headers.items() if k.lower() in FORWARDED_HEADERS}
     if (request_id := REQUEST_ID.get()) is not None:  # the given or generated id: one id in both requests' logs
         headers["x-request-id"] = request_id
@@ -129,50 +209,16 @@ async def _forward(request: Request, path: str, body: dict[str, Any]) -> httpx.R
     # request carries this process's internal token, which never leaves it.
     headers["authorization"] = f"Bearer {request.app.state.internal_token}"
     transport = httpx.ASGITransport(app=request.app)
-    async with httpx.AsyncClient(transport=transport, base_url="http://spacearm.internal", timeout=600) as client:
-        return await client.post(path, json=body, headers=headers)
+    async with httpx.AsyncClient(transport=transport, base_url="http://localhost", timeout=600) as client:
+        return await client.request(method, path, json=body, headers=headers)
 
 
-def _float(form: dict[str, str], key: str, default: float | None = None) -> float | None:
-    text = form.get(key, "").strip()
-    if not text:
-        return default
-    try:
-        return float(text)
-    except ValueError:
-        return math.nan  # the API rejects it with a field path
-
-
-def _plan_body(form: dict[str, str]) -> dict[str, Any]:
-    preset = presets.PRESETS.get(form.get("preset", "paper-line"), presets.PRESETS["paper-line"])
-    task = preset.task.model_dump()
-    for key in ("duration_s", "dt_s", "joint_speed_limit_deg_s"):
-        value = _float(form, key)
-        if value is not None:
-            task[key] = value
-    method = form.get("method", "adaptive")
-    params: dict[str, float] = {}
-    for p in pages.method_params(method):
-        value = _float(form, f"{method}.{p.name}")
-        if value is not None:
-            params[p.name] = value
-    return {
-        "robot_id": form.get("robot_id") or preset.robot_id,
-        "task": task,
-        "method": {"name": method, "params": params},
-        "feedback_gain": _float(form, "feedback_gain", 0.0),
-        "replay": form.get("replay") == "on",
-    }
-
-
-def _problem_text(response: httpx.Response) -> str:
+def _errors(response: httpx.Response, locate: forms.Locator) -> forms.FormErrors:
     try:
         problem = response.json()
     except ValueError:
-        return f"{response.status_code}: {response.text[:500]}"
-    errors = problem.get("errors") or []
-    lines = [str(problem.get("detail", problem))] + [f"{e.get('field')}: {e.get('message')}" for e in errors]
-    return "\n".join(lines)
+        problem = None
+    return forms.form_errors(response.status_code, problem if isinstance(problem, dict) else None, locate, response.text)
 
 
 @router.get("/login", response_class=HTMLResponse)
@@ -183,9 +229,15 @@ def login_page(request: Request, next: str = "/") -> HTMLResponse:
 @router.post("/login")
 async def login(request: Request) -> Response:
     """Check a key and open a session (:mod:`service.infra.sessions`): the cookie holds the session's
-    random token (HttpOnly, SameSite=Strict, Secure when configured), never the key."""
+    random token (HttpOnly, SameSite=Strict, Secure when configured), never the key. Attempts are
+    limited per client address (:mod:`service.infra.ratelimit`): beyond, 429 with ``Retry-After``."""
     form = await _form(request)
     target = _local(form.get("next", "/"))
+    wait_s = request.app.state.login_limiter.hit(request.client.host if request.client else "")
+    if wait_s is not None:
+        refused = page("login.html", 429, request=request, next=target, error=f"too many attempts: try again in {wait_s} s")
+        refused.headers["Retry-After"] = str(wait_s)
+        return refused
     try:
         check_form(request, form)
     except FormRejectedError as error:
@@ -241,11 +293,11 @@ async def submit_plan(request: Request) -> Response:
         check_form(request, form)
     except FormRejectedError as error:
         return rejected(request, error)
-    response = await _forward(request, "/v1/plans", _plan_body(form))
+    response = await _forward(request, "POST", "/v1/plans", forms.plan_body(form))
     if response.status_code == 201:
         return RedirectResponse(f"/plans/{response.json()['id']}", status_code=303)
-    context = index_context(request)
-    return page("index.html", response.status_code, request=request, form=form, form_error=_problem_text(response), **context)
+    errors = _errors(response, forms.plan_locator(form.get("method", "adaptive")))
+    return index_page(request, response.status_code, form=form, errors=errors)
 
 
 @router.post("/web/tuning-jobs")
@@ -255,22 +307,57 @@ async def submit_job(request: Request) -> Response:
         check_form(request, form)
     except FormRejectedError as error:
         return rejected(request, error)
-    preset = presets.PRESETS.get(form.get("preset", "paper-line"), presets.PRESETS["paper-line"])
-    population = _float(form, "population", 8.0)
-    generations = _float(form, "generations", 5.0)
-    body = {
-        "robot_id": preset.robot_id,
-        "tasks": [preset.task.model_dump()],
-        "method": form.get("method", "adaptive"),
-        "ga": {
-            "population": int(population) if population is not None and math.isfinite(population) else population,
-            "generations": int(generations) if generations is not None and math.isfinite(generations) else generations,
-            "seed": 1,
-        },
-        "compare_with_dls": form.get("compare_with_dls") == "on",
-    }
-    response = await _forward(request, "/v1/tuning-jobs", body)
+    response = await _forward(request, "POST", "/v1/tuning-jobs", forms.job_body(form))
     if response.status_code in (200, 201, 202):
         return RedirectResponse(f"/jobs/{response.json()['id']}", status_code=303)
-    context = index_context(request)
-    return page("index.html", response.status_code, request=request, form={}, job_form_error=_problem_text(response), **context)
+    return index_page(request, response.status_code, job_form=form, job_errors=_errors(response, forms.job_locator))
+
+
+@router.post("/web/robots")
+async def upload_robot(request: Request) -> Response:
+    """Store an uploaded robot file (JSON parameters or URDF; multipart form with ``file``, or the
+    document pasted in ``document``) through ``POST /v1/robots``; back to the robots' list."""
+    form: dict[str, str] = {}
+    document = ""
+    async with request.form(max_files=1, max_fields=20) as data:
+        for key, value in data.multi_items():
+            if isinstance(value, UploadFile):
+                document = (await value.read()).decode("utf-8", errors="replace")
+                form["filename"] = value.filename or ""
+            else:
+                form[key] = value
+    try:
+        check_form(request, form)
+    except FormRejectedError as error:
+        return rejected(request, error)
+    document = document or form.get("document", "")
+    try:
+        body = forms.robot_body(document, form.get("end_effector_link", ""), form.get("name", ""))
+    except forms.RobotFileError as exc:
+        return index_page(request, 422, robot_form=form, robot_errors=forms.FormErrors(fields={"file": str(exc)}))
+    response = await _forward(request, "POST", "/v1/robots", body)
+    if response.status_code == 201:
+        return RedirectResponse(f"/?robot={quote(response.json()['id'])}#robots", status_code=303)
+    return index_page(request, response.status_code, robot_form=form, robot_errors=_errors(response, forms.robot_locator))
+
+
+DELETABLE = {"robots": ("/v1/robots/", "robots"), "plans": ("/v1/plans/", "plans"), "tuning-jobs": ("/v1/tuning-jobs/", "jobs")}
+
+
+@router.post("/web/{kind}/{item_id}/delete")
+async def delete_item(kind: str, item_id: str, request: Request) -> Response:
+    """Delete a robot, plan or tuning job through the API's ``DELETE``; back to its list on the
+    index (a refusal, such as a preset robot's 409, is shown there)."""
+    form = await _form(request)
+    try:
+        check_form(request, form)
+    except FormRejectedError as error:
+        return rejected(request, error)
+    if kind not in DELETABLE:
+        return page("error.html", 404, request=request, title="Not found", detail=f"nothing to delete at {kind!r}")
+    prefix, section = DELETABLE[kind]
+    response = await _forward(request, "DELETE", prefix + quote(item_id, safe=""))
+    if response.status_code == 204:
+        return RedirectResponse(f"/#{section}", status_code=303)
+    errors = _errors(response, lambda loc: ("", loc))
+    return index_page(request, response.status_code, notice=f"could not delete {item_id}: {'; '.join(errors.general)}")

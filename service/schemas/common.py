@@ -26,6 +26,7 @@ from pydantic import (
 )
 from typing_extensions import TypeAliasType
 
+from engine.bounds import MAX_EFFORT, MAX_INERTIA, MAX_JOINT_LIMIT, MAX_JOINTS, MAX_LENGTH_M, MAX_MASS_KG
 from engine.errors import ParameterError
 from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, DET_UNITS, SINGULAR_VALUE_UNITS, check_weights
 from engine.model import JOINT_TYPES, RobotModel
@@ -35,11 +36,9 @@ from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
 from engine.trajectory import PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY, TRACKS
 from engine.tuning import TASK_AGGREGATIONS
 
-# Every number in a request is bounded (an overflow inside the engine is ruled out by the schema).
-MAX_LENGTH_M = 1e3
+# Every number in a request is bounded (an overflow inside the engine is ruled out by the schema);
+# a robot's bounds are the engine's own (engine.bounds), so its models are within them too.
 MAX_ANGLE_DEG = 36_000.0  # a hundred turns
-MAX_INERTIA = 1e12  # kg m^2
-MAX_MASS_KG = 1e9
 MAX_MAGNITUDE = 1e6  # method parameters, gains, weights, quaternion components
 Length = Annotated[float, Field(ge=-MAX_LENGTH_M, le=MAX_LENGTH_M)]
 AngleDeg = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
@@ -63,8 +62,13 @@ RotationRow = Annotated[list[Annotated[float, Field(ge=-1.000001, le=1.000001)]]
 Rotation = Annotated[list[RotationRow], Field(min_length=3, max_length=3, description="a rotation matrix (orthonormal, det +1)")]
 JointValue = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
 #: Joint positions of one unit, index-aligned with the robot's joints (null: a joint of the other unit).
-JointValues = Annotated[list[JointValue | None], Field(min_length=1, max_length=12)]
-LimitValue = Annotated[float, Field(ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
+JointValues = Annotated[list[JointValue | None], Field(min_length=1, max_length=MAX_JOINTS)]
+LimitValue = Annotated[float, Field(ge=-MAX_JOINT_LIMIT, le=MAX_JOINT_LIMIT)]
+
+#: A stored plan's, job's or landscape's id: 32 lowercase hex digits.
+ID_REGEX = "[0-9a-f]{32}"
+ID_PATTERN = f"^{ID_REGEX}$"
+EffortLimit = Annotated[float, Field(gt=0, le=MAX_EFFORT)]
 
 __all__ = ["DET_UNITS", "SINGULAR_VALUE_UNITS"]  # the engine's unit texts, re-used by the schemas
 
@@ -172,6 +176,17 @@ def engine_name(api_name: str) -> str:
         if api_name.endswith(suffix) and len(api_name) > len(suffix):
             return api_name[: -len(suffix)]
     return api_name
+
+
+def dotted_path(loc: Sequence[Any]) -> str:
+    """``["links", 2, "inertia"]`` -> ``links[2].inertia`` (the inverse of :func:`field_path`)."""
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
 
 
 def field_path(field: str) -> list[str | int]:

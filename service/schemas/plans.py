@@ -16,6 +16,7 @@ from engine.trajectory import MAX_DURATION_S
 from service.schemas.common import (
     AGGREGATION_DESCRIPTION,
     DET_UNITS,
+    ID_PATTERN,
     MAX_MAGNITUDE,
     PAPER_TASK_EXAMPLE,
     SINGULAR_VALUE_UNITS,
@@ -27,10 +28,17 @@ from service.schemas.common import (
     TrackedQuantity,
     Weights,
     _not_required,
+    vocabulary,
 )
 from service.schemas.methods import MethodIn, MethodOut, SecondaryIn
-from service.schemas.robots import OneRobot
+from service.schemas.paths import PathSchema
+from service.schemas.robots import OneRobot, RobotParams
 from service.schemas.tasks import TaskIn
+
+if TYPE_CHECKING:
+    PathTypeName = str
+else:
+    PathTypeName = vocabulary("PathType", PathSchema.types)
 
 
 class PlanRequest(OneRobot):
@@ -73,6 +81,65 @@ class PlanRequest(OneRobot):
             objective=Objective((self.weights[0], self.weights[1]), self.aggregation, self.attitude_term),
             secondary=self.secondary.to_engine() if self.secondary is not None else None,
         )
+
+
+def _patch_of(model: type[Input], name: str) -> Any:
+    """A merge patch of ``model``: its fields, each optional and of any JSON value (a value is
+    checked once merged, as part of the whole request), no other field."""
+    fields: dict[str, Any] = {
+        info.alias or attr: (Any, Field(default=None, description=f"{info.description or attr}; a merge patch member"))
+        for attr, info in model.model_fields.items()
+    }
+    return create_model(name, __base__=Input, __doc__=f"A JSON merge patch of a `{model.__name__}`.", **fields)
+
+
+if TYPE_CHECKING:
+    TaskPatch = Input
+    MethodPatch = Input
+    SecondaryPatch = Input
+else:
+    TaskPatch = _patch_of(TaskIn, "TaskPatch")
+    MethodPatch = _patch_of(MethodIn, "MethodPatch")
+    SecondaryPatch = _patch_of(SecondaryIn, "SecondaryPatch")
+
+
+class PlanRerun(Input):
+    """A stored plan planned again with changes: the stored plan's request (`from_plan_id`, as its
+    `request` shows it) with this body's other fields merged into it as a JSON merge patch (RFC 7396):
+    an object is merged member by member, recursively; any other value (a number, a list, a text)
+    replaces the stored one; `null` removes the member, so the field takes its default. Two additions
+    to RFC 7396: a `path` (in `task`) whose `type` differs from the stored path's, and a `method` whose
+    `name` differs from the stored method's, replace the stored object whole instead of being merged
+    into it (the parameters of one path type or method mean nothing to another); and `robot` (an
+    inline robot) replaces the stored robot whole: giving it drops the stored `robot_id`, giving
+    `robot_id` drops the stored inline `robot`. The
+    merged request is then validated as any plan request (errors name its fields, `body.task...`)."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [
+                {"from_plan_id": "0" * 32, "method": {"params": {"epsilon": 0.37}}, "task": {"duration_s": 20.0}},
+                {"from_plan_id": "0" * 32, "method": {"name": "dls", "params": {"lambda": 0.035}}, "replay": False},
+            ]
+        },
+    )
+
+    from_plan_id: str = Field(pattern=ID_PATTERN, description="the stored plan whose request is the starting point")
+    robot_id: str | None = Field(default=None, description="another stored robot (drops the stored inline `robot`)")
+    robot: RobotParams | None = Field(default=None, description="an inline robot, whole (drops the stored `robot_id`)")
+    task: TaskPatch | None = Field(default=None, description="merged into the stored task (`path` by its `type`)")
+    method: MethodPatch | None = Field(default=None, description="merged into the stored method (by its `name`)")
+    feedback_gain: float | None = Field(default=None, description="replaces the stored value (1/s; null: the default)")
+    aggregation: str | None = Field(default=None, description="replaces the stored value (null: the default)")
+    weights: list[float] | None = Field(default=None, description="replace the stored weights (dimensionless; null: the default)")
+    attitude_term: str | None = Field(default=None, description="replaces the stored value (null: the default)")
+    replay: bool | None = Field(default=None, description="replaces the stored value (null: the default)")
+    secondary: SecondaryPatch | None = Field(default=None, description="merged into the stored one (null: none)")
+
+    def patch(self) -> dict[str, Any]:
+        """The merge patch: the fields this body gives (nulls included), but ``from_plan_id``."""
+        return self.model_dump(mode="json", exclude_unset=True, exclude={"from_plan_id"})
 
 
 def _metric_field(spec: MetricSpec) -> tuple[Any, Any]:
@@ -122,6 +189,8 @@ def metrics_out(metrics: Metrics[float]) -> dict[str, Any]:
 
 #: Trajectory arrays are time-major: one row per sample of `t_s`; null where a value is not finite.
 PER_SAMPLE = "one row per sample of `t_s`"
+EXECUTED = "(the clamped cubic spline through the joint samples, from rest to the last commanded rate)"
+NO_DYNAMICS = "null rows for a diverged plan (and for plans stored before dynamics were computed)"
 
 
 class Trajectory(Output):
@@ -129,7 +198,11 @@ class Trajectory(Output):
     finite (a diverged plan). Joint columns follow the robot's joints: revolute joints in the
     `_deg` arrays, prismatic ones in the `_m` arrays (null in the other's columns)."""
 
-    model_config = ConfigDict(json_schema_extra=_not_required("joint_displacements_m", "joint_velocities_m_s"))
+    model_config = ConfigDict(
+        json_schema_extra=_not_required(
+            "joint_displacements_m", "joint_velocities_m_s", "joint_accelerations_m_s2", "joint_forces_n"
+        )
+    )
 
     t_s: list[float] = Field(description="sample times, s")
     joint_angles_deg: list[list[float | None]] = Field(
@@ -169,6 +242,32 @@ class Trajectory(Output):
     )
     position_error_m: list[float | None] = Field(description="end-effector position error per sample, m")
     attitude_error_rad: list[float | None] = Field(description="end-effector attitude error (rotation angle) per sample, rad")
+    joint_accelerations_deg_s2: list[list[float | None]] = Field(
+        description=f"joint accelerations of the executed trajectory {EXECUTED}, deg/s^2; {PER_SAMPLE}, one column per "
+        f"joint (null in prismatic columns); {NO_DYNAMICS}"
+    )
+    joint_accelerations_m_s2: list[list[float | None]] | None = Field(
+        default=None,
+        description=f"prismatic joint accelerations of the executed trajectory, m/s^2; {PER_SAMPLE} (null in revolute "
+        "columns); only for robots with prismatic joints (left out otherwise)",
+    )
+    joint_torques_n_m: list[list[float | None]] = Field(
+        description=f"joint torques along the executed trajectory (free-floating inverse dynamics, no gravity), N m; "
+        f"{PER_SAMPLE}, one column per joint (null in prismatic columns); {NO_DYNAMICS}"
+    )
+    joint_forces_n: list[list[float | None]] | None = Field(
+        default=None,
+        description=f"prismatic joint forces along the executed trajectory, N; {PER_SAMPLE} (null in revolute columns); "
+        "only for robots with prismatic joints (left out otherwise)",
+    )
+    mount_force_n: list[list[float | None]] = Field(
+        description=f"the force the arm exerts on the carrier at joint 1, carrier frame, N; {PER_SAMPLE}, [x, y, z]; "
+        f"{NO_DYNAMICS}"
+    )
+    mount_torque_n_m: list[list[float | None]] = Field(
+        description=f"the torque the arm exerts on the carrier about joint 1's origin, carrier frame, N m; {PER_SAMPLE}, "
+        f"[x, y, z]; {NO_DYNAMICS}"
+    )
 
     @staticmethod
     def arrays(record: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -177,6 +276,9 @@ class Trajectory(Output):
         degrees, prismatic joints' columns moved to the ``_m`` arrays, attitudes as quaternions."""
         prismatic = record["prismatic"].astype(bool)
         q, qd = record["q"], record["qd"]
+        unknown = np.full(q.shape, np.nan)  # a plan stored before its dynamics were computed
+        qdd, tau = record.get("qdd", unknown), record.get("tau", unknown)
+        wrench = np.full((q.shape[0], 3), np.nan)
         joints: dict[str, np.ndarray] = {
             "joint_angles_deg": np.where(prismatic, np.nan, np.degrees(q)),
             "joint_velocities_deg_s": np.where(prismatic, np.nan, np.degrees(qd)),
@@ -184,6 +286,15 @@ class Trajectory(Output):
         if np.any(prismatic):
             joints["joint_displacements_m"] = np.where(prismatic, q, np.nan)
             joints["joint_velocities_m_s"] = np.where(prismatic, qd, np.nan)
+        dynamics: dict[str, np.ndarray] = {
+            "joint_accelerations_deg_s2": np.where(prismatic, np.nan, np.degrees(qdd)),
+            "joint_torques_n_m": np.where(prismatic, np.nan, tau),
+            "mount_force_n": record.get("mount_force", wrench),
+            "mount_torque_n_m": record.get("mount_torque", wrench),
+        }
+        if np.any(prismatic):
+            dynamics["joint_accelerations_m_s2"] = np.where(prismatic, qdd, np.nan)
+            dynamics["joint_forces_n"] = np.where(prismatic, tau, np.nan)
         return {
             "t_s": record["t"],
             **joints,
@@ -198,7 +309,19 @@ class Trajectory(Output):
             "damping": record["damping"],
             "position_error_m": record["position_error"],
             "attitude_error_rad": record["attitude_error"],
+            **{name: dynamics[name] for name in DYNAMICS_ORDER if name in dynamics},
         }
+
+
+#: The order of the dynamics arrays in a trajectory (as the schema declares them).
+DYNAMICS_ORDER = (
+    "joint_accelerations_deg_s2",
+    "joint_accelerations_m_s2",
+    "joint_torques_n_m",
+    "joint_forces_n",
+    "mount_force_n",
+    "mount_torque_n_m",
+)
 
 
 class ReplayOut(Output):
@@ -249,6 +372,11 @@ class ReplayOut(Output):
 class PlanSummary(Output):
     id: str = Field(description="the plan's id (32 hex digits)")
     robot_id: str | None = Field(description="the stored robot planned for; null for an inline robot")
+    request: PlanRequest | None = Field(
+        description="what the plan was asked: its request as stored, every default filled in (the task with its path, "
+        "the method, the options); post it to `/v1/plans` to plan it again, or give the plan's id as `from_plan_id` "
+        "with changes. Null for a plan stored by an earlier version whose request this version does not read"
+    )
     method: MethodOut = Field(description="the robust inverse used, every parameter filled in")
     success: bool = Field(description="the plan is finite, within the joint speed limit, on the path and at the target")
     message: str = Field(description="the verdict, for a person (where and why a plan failed)")

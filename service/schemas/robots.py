@@ -9,7 +9,7 @@ from datetime import datetime
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import ConfigDict, Field, GetJsonSchemaHandler, model_validator
+from pydantic import ConfigDict, Field, GetJsonSchemaHandler, ValidationError, model_validator
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema
 
@@ -17,10 +17,12 @@ from engine import GJMResult, RobotModel, State
 from engine.errors import ParameterError
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.trajectory import PAPER_Q0_DEG
-from engine.urdf import MAX_URDF_BYTES
+from engine.urdf import MAX_URDF_BYTES, UrdfError, urdf_element, urdf_to_dict
 from service.infra import jsonio
 from service.schemas.common import (
     DET_UNITS,
+    MAX_JOINTS,
+    EffortLimit,
     EngineName,
     Inertia,
     Input,
@@ -33,6 +35,8 @@ from service.schemas.common import (
     Quaternion,
     Rotation,
     Vec3,
+    _omitted_when_none,
+    dotted_path,
     joint_positions,
 )
 
@@ -65,6 +69,14 @@ class LinkParams(Input):
     b: Vec3 = Field(description="m, link i CoM to joint i+1 (or the end effector), link frame")
     inertia: Inertia = Field(description="kg m^2 about the link CoM, link frame")
     limits: JointLimits | None = Field(default=None, description="position limits (SI); null: unlimited")
+    torque_limit_n_m: EffortLimit | None = Field(
+        default=None,
+        description="revolute joints: the largest |torque| the joint may exert, N m (> 0; null: none); every plan's "
+        "torques along its executed trajectory are checked against it and it counts in P_l of B (URDF <limit effort>)",
+    )
+    force_limit_n: EffortLimit | None = Field(
+        default=None, description="prismatic joints: the largest |force| the joint may exert, N (> 0; null: none)"
+    )
 
 
 class EndEffectorParams(Input):
@@ -78,16 +90,24 @@ MODEL_CACHE_SIZE = 64
 
 
 def model_of(parameters: dict[str, Any]) -> RobotModel:
-    """The validated model of a parameter set (a request's or a stored robot's). Models are
-    immutable, so the last few are kept (keyed by their parameters), which spares stored robots
-    the validation on every request; errors name the parameter (``links[2].inertia``)."""
+    """The model of a parameter set, whatever its source (a request's, a URDF's, a stored robot's),
+    through the one validation of robots: the schema of :class:`RobotParams` (the bounds and
+    messages of a request body), then the engine's checks (:meth:`RobotModel.from_dict`: positive
+    definite, physical inertias, non-zero axes, ...). The first problem is a ``ParameterError``
+    naming the parameter (``links[2].inertia``). Models are immutable, so the last few are kept
+    (keyed by their parameters), which spares stored robots the validation on every request."""
     key = jsonio.dumps_sorted(parameters)
     with _MODELS_LOCK:
         cached = _MODELS.get(key)
         if cached is not None:
             _MODELS.move_to_end(key)
             return cached
-    model = RobotModel.from_dict(parameters)
+    try:
+        checked = RobotParams.model_validate(parameters, strict=False).model_dump(exclude_none=True)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        raise ParameterError(dotted_path(error["loc"]) or "robot", error["msg"]) from None
+    model = RobotModel.from_dict(checked)
     with _MODELS_LOCK:
         _MODELS[key] = model
         while len(_MODELS) > MODEL_CACHE_SIZE:
@@ -101,7 +121,7 @@ class RobotParams(Input):
 
     name: str = Field(min_length=1, max_length=200, description="the robot's name")
     base: BaseParams = Field(description="the free-floating base (carrier)")
-    links: list[LinkParams] = Field(min_length=1, max_length=12, description="the links from the base out, one per joint")
+    links: list[LinkParams] = Field(min_length=1, max_length=MAX_JOINTS, description="the links from the base out, one per joint")
     end_effector: EndEffectorParams | None = Field(
         default=None, description="the end-effector frame (default: the last link's frame)"
     )
@@ -130,7 +150,10 @@ class RobotUrdfIn(Input):
     name: str | None = Field(default=None, min_length=1, max_length=200, description="the robot's name (default: the URDF's)")
 
     def to_engine(self) -> RobotModel:
-        """The model of the URDF; a URDF the engine refuses is a ``UrdfError`` naming the element."""
+        """The model of the URDF: the parameter set the engine derives from it, through the same
+        validation as a parameter set sent as such (:func:`model_of`); a URDF refused is a
+        ``UrdfError`` naming the element (a derived parameter out of range names its link, and
+        says which parameter and why in the words a parameter set would get)."""
         tool = None
         if self.tool_position_m is not None or self.tool_attitude_quaternion is not None:
             try:
@@ -138,7 +161,11 @@ class RobotUrdfIn(Input):
             except ValueError as exc:
                 raise ParameterError("tool_attitude_quaternion", str(exc)) from None
             tool = (np.asarray(self.tool_position_m or [0.0, 0.0, 0.0], dtype=float), rotation)
-        return RobotModel.from_urdf(self.urdf, end_effector_link=self.end_effector_link, tool_offset=tool, name=self.name)
+        params = urdf_to_dict(self.urdf, end_effector_link=self.end_effector_link, tool_offset=tool, name=self.name)
+        try:
+            return model_of(params)
+        except ParameterError as exc:
+            raise UrdfError(urdf_element(params, exc.field), f"{exc.field}: {exc.reason}") from None
 
 
 class JointOut(Output):
@@ -151,13 +178,15 @@ class JointOut(Output):
     upper_deg: float | None = Field(default=None, description="revolute joints: upper position limit, deg (null: unlimited)")
     lower_m: float | None = Field(default=None, description="prismatic joints: lower position limit, m (null: unlimited)")
     upper_m: float | None = Field(default=None, description="prismatic joints: upper position limit, m (null: unlimited)")
+    torque_limit_n_m: float | None = Field(default=None, description="revolute joints: torque limit, N m (null: none)")
+    force_limit_n: float | None = Field(default=None, description="prismatic joints: force limit, N (null: none)")
 
 
 def _degrees(value: float) -> float | None:
     return math.degrees(value) if math.isfinite(value) else None
 
 
-def _metres(value: float) -> float | None:
+def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
 
@@ -165,13 +194,28 @@ def joints_of(model: RobotModel) -> tuple[list[JointOut], list[str]]:
     """The joints with their API units and limits, and notes on the joints without limits."""
     joints, unlimited = [], []
     for name, link in zip(model.joint_names, model.links, strict=True):
+        effort = _finite(link.effort_limit)  # N m or N
         if link.prismatic:
             joints.append(
-                JointOut(name=name, type="prismatic", unit="m", lower_m=_metres(link.lower), upper_m=_metres(link.upper))
+                JointOut(
+                    name=name,
+                    type="prismatic",
+                    unit="m",
+                    lower_m=_finite(link.lower),
+                    upper_m=_finite(link.upper),
+                    force_limit_n=effort,
+                )
             )
         else:
             joints.append(
-                JointOut(name=name, type="revolute", unit="deg", lower_deg=_degrees(link.lower), upper_deg=_degrees(link.upper))
+                JointOut(
+                    name=name,
+                    type="revolute",
+                    unit="deg",
+                    lower_deg=_degrees(link.lower),
+                    upper_deg=_degrees(link.upper),
+                    torque_limit_n_m=effort,
+                )
             )
         if not (math.isfinite(link.lower) and math.isfinite(link.upper)):
             unlimited.append(name)
@@ -295,10 +339,17 @@ class OneRobot(Input):
         return schema
 
     # Optional but not nullable: left out when not used (a null is refused like any wrong type).
+    # Left out of a dump when not given, too (a request echoed in a response has only the one given).
     robot_id: str = Field(  # type: ignore[assignment]
-        default=None, min_length=1, max_length=64, description="a stored robot; or give `robot` inline (one of the two)"
+        default=None,
+        min_length=1,
+        max_length=64,
+        exclude_if=_omitted_when_none,
+        description="a stored robot; or give `robot` inline (one of the two)",
     )
-    robot: RobotParams = Field(default=None, description="inline robot parameters (instead of robot_id)")  # type: ignore[assignment]
+    robot: RobotParams = Field(  # type: ignore[assignment]
+        default=None, exclude_if=_omitted_when_none, description="inline robot parameters (instead of robot_id)"
+    )
 
     @model_validator(mode="after")
     def _exactly_one(self) -> Any:

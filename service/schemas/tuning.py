@@ -130,12 +130,22 @@ class TuningJobRequest(OneRobot):
     objective: ObjectiveSettings = Field(default_factory=ObjectiveSettings, description="the objective B")
     feedback_gain: float = Field(default=0.0, ge=0, le=MAX_MAGNITUDE, description="1/s, pose-error feedback")
     compare_with_dls: bool = Field(default=True, description="also tune constant-damping DLS with the same GA settings")
+    compare_with_bounded: bool = Field(
+        default=False,
+        description="also tune the `bounded` inverse (DLS held within the joint speed and position limits by an exact "
+        "QP) with the same GA settings: the comparison's third row (ignored when `method` is `bounded`)",
+    )
 
     def phases(self) -> list[tuple[str, str, dict[str, list[float]] | None]]:
         """The GA runs of the job: ``(method, role, bounds)``, the tuned method then (with
-        ``compare_with_dls``) the DLS baseline with its default bounds."""
-        tuned = (self.method, "tuned", self.bounds.given() if self.bounds else None)
-        return [tuned, ("dls", "dls_baseline", None)] if self.compare_with_dls else [tuned]
+        ``compare_with_dls``) the DLS baseline and (with ``compare_with_bounded``) the bounded
+        inverse, each with its default bounds."""
+        phases = [(self.method, "tuned", self.bounds.given() if self.bounds else None)]
+        if self.compare_with_dls:
+            phases.append(("dls", "dls_baseline", None))
+        if self.compare_with_bounded and self.method != "bounded":
+            phases.append(("bounded", "bounded_baseline", None))
+        return phases
 
     def problems(self, model: RobotModel) -> list[TuningProblem]:
         """The engine's problem of each phase (its tasks and bounds checked once: errors name the
@@ -171,7 +181,7 @@ def history_record(record: GenerationRecord) -> dict[str, Any]:
     }
 
 
-PhaseRole = TypeAliasType("PhaseRole", Literal["tuned", "dls_baseline"])
+PhaseRole = TypeAliasType("PhaseRole", Literal["tuned", "dls_baseline", "bounded_baseline"])
 if TYPE_CHECKING:
     PhaseName = str
 else:
@@ -179,10 +189,11 @@ else:
 
 
 class JobPhase(Output):
-    """One GA run of a job: the tuned method, then (with ``compare_with_dls``) the DLS baseline."""
+    """One GA run of a job: the tuned method, then (with ``compare_with_dls``) the DLS baseline and
+    (with ``compare_with_bounded``) the bounded inverse."""
 
     name: TunableMethodName = Field(description="the method this GA tunes")
-    role: PhaseRole = Field(description="`tuned` (the job's method) or `dls_baseline`")
+    role: PhaseRole = Field(description="`tuned` (the job's method), `dls_baseline` or `bounded_baseline`")
     generations: int = Field(description="generations of this GA (after the initial population)")
     completed: int = Field(description="generations of this GA finished so far (0 to `generations`)")
     history: list[HistoryRecord] = Field(description="one record per finished generation, from the initial population (0)")
@@ -204,7 +215,7 @@ class JobLinks(Output):
     model_config = ConfigDict(populate_by_name=True)
 
     self_: str = Field(alias="self", description="this job")
-    result: str = Field(description="its result (409 until it succeeded)")
+    result: str = Field(description="its result (409 until it succeeded; a cancelled job's best so far)")
     events: str = Field(description="its Server-Sent Events (status changes and generations, live)")
     convergence_figure: str = Field(description="its convergence figure (paper Fig. 7), SVG; `?format=png` for PNG")
 
@@ -216,6 +227,10 @@ class TuningJobOut(Output):
     method: TunableMethodName = Field(description="the method being tuned")
     progress: JobProgress = Field(description="how far the GA is")
     attempts: int = Field(description="times a worker claimed the job")
+    worker_id: str | None = Field(
+        description="the worker that claimed the job last (`host:pid:random`, as in its log and the "
+        "`spacearm_worker_heartbeat_age_seconds` metric); null while it was never claimed"
+    )
     max_attempts: int = Field(description="claims before the job is failed for good")
     cancel_requested: bool = Field(description="a cancellation was asked for")
     error: str | None = Field(description="why the job failed; null otherwise")
@@ -240,7 +255,30 @@ class DLSBaseline(Output):
     model_config = ConfigDict(populate_by_name=True)
 
 
+class BoundedBaseline(Output):
+    lambda_: float | None = Field(
+        alias="lambda",
+        serialization_alias="lambda",
+        description=f"the tuned damping of the bounded inverse, {SINGULAR_VALUE_UNITS}",
+    )
+    objective_b: float | None = Field(description="B of the tuned bounded inverse")
+    warnings: list[str] = Field(default_factory=list, description="e.g. the tuned lambda on a search bound")
+
+    model_config = ConfigDict(populate_by_name=True)
+
+
+ResultStatus = TypeAliasType("ResultStatus", Literal["succeeded", "cancelled"])
+
+
 class TuningJobResult(Output):
+    """A job's result: the GA's best parameters, complete (`status` `succeeded`) or the best found
+    before the job was cancelled (`status` `cancelled`)."""
+
+    status: ResultStatus = Field(
+        default="succeeded",
+        description="`succeeded`: every generation ran; `cancelled`: the best found before the job was cancelled",
+    )
+    message: str = Field(default="", description="how far the GA got, for a person")
     best_params: MethodParams = Field(description="the tuned parameters (those of the method)")
     best_objective_b: float | None = Field(description="their B; null if no individual was feasible")
     best_metrics: list[PlanMetrics] = Field(description="metrics of the best parameters, one per task")
@@ -251,20 +289,41 @@ class TuningJobResult(Output):
     improvement_over_dls_percent: float | None = Field(
         description="how much lower B is than the tuned DLS's, percent; null without a baseline"
     )
+    bounded_baseline: BoundedBaseline | None = Field(
+        default=None,
+        description="the bounded inverse tuned with the same GA settings (the third row); null without `compare_with_bounded`",
+    )
+    bounded_improvement_over_dls_percent: float | None = Field(
+        default=None,
+        description="how much lower the bounded inverse's B is than the tuned DLS's, percent (negative: higher); "
+        "null without both baselines",
+    )
     warnings: list[str] = Field(
         default_factory=list,
         description="e.g. a tuned parameter on a search bound, where the optimum may lie beyond it: widen that bound",
     )
 
     @classmethod
-    def from_engine(cls, tuned: TuneResult, baseline: TuneResult | None, evaluations: int, elapsed_s: float) -> TuningJobResult:
-        """The result of a job's GA runs (the tuned method, and the DLS baseline if any)."""
+    def from_engine(
+        cls,
+        tuned: TuneResult,
+        baseline: TuneResult | None,
+        evaluations: int,
+        elapsed_s: float,
+        status: Literal["succeeded", "cancelled"] = "succeeded",
+        message: str = "every generation ran",
+        bounded: TuneResult | None = None,
+    ) -> TuningJobResult:
+        """The result of a job's GA runs (the tuned method, and the DLS baseline and the bounded
+        inverse if any), complete or (``status`` cancelled) as far as they got."""
 
         def number(value: float) -> float | None:
             return value if math.isfinite(value) else None
 
         return cls.model_validate(
             {
+                "status": status,
+                "message": message,
                 "best_params": params_out(tuned.best_params),
                 "best_objective_b": number(tuned.best_objective_b),
                 "best_metrics": [metrics_out(m) for m in tuned.best_metrics],
@@ -281,6 +340,16 @@ class TuningJobResult(Output):
                 "improvement_over_dls_percent": None
                 if baseline is None
                 else number(improvement_percent(baseline.best_objective_b, tuned.best_objective_b)),
+                "bounded_baseline": None
+                if bounded is None
+                else {
+                    "lambda": bounded.best_params.get("lambda"),
+                    "objective_b": number(bounded.best_objective_b),
+                    "warnings": bounded.warnings,
+                },
+                "bounded_improvement_over_dls_percent": None
+                if baseline is None or bounded is None
+                else number(improvement_percent(baseline.best_objective_b, bounded.best_objective_b)),
                 "warnings": tuned.warnings,
             }
         )

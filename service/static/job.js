@@ -51,12 +51,14 @@
 
   function showResult() {
     fetch(base + "/result").then(function (r) { return r.json(); }).then(function (res) {
-      var d = res.dls_baseline;
+      var d = res.dls_baseline, b = res.bounded_baseline;
       var t = document.createElement("p");
       t.id = "job-result-text";
       t.textContent = "Result: B = " + fmt(res.best_objective_b) + " with " + params(res.best_params) +
         (d ? "; DLS baseline B = " + fmt(d.objective_b) + " (lambda=" + fmt(d.lambda) + "), improvement " +
          fmt(res.improvement_over_dls_percent) + " %" : "") +
+        (b ? "; bounded inverse B = " + fmt(b.objective_b) + " (lambda=" + fmt(b.lambda) + ")" +
+         (d ? ", " + fmt(res.bounded_improvement_over_dls_percent) + " % against DLS" : "") : "") +
         ((res.warnings || []).length ? " — " + res.warnings.join("; ") : "");
       var box = document.getElementById("job-result");
       box.innerHTML = "";
@@ -72,7 +74,7 @@
   });
   stream.addEventListener("generation", function (e) {
     var g = JSON.parse(e.data);
-    var phase = g.role === "dls_baseline" ? "DLS baseline" : g.phase;
+    var phase = g.role === "dls_baseline" ? "DLS baseline" : g.role === "bounded_baseline" ? "bounded inverse" : g.phase;
     text("job-phase", phase + ": generation " + g.generation + " / " + g.generations);
     text("job-best", fmt(g.best));
     wantFigure(e.lastEventId);

@@ -49,8 +49,9 @@ def plan_data(session: Session, row: Plan, with_robot: bool = True) -> figures.P
     )
 
 
-def plan_figure(db: Database, plan_id: str, name: str, fmt: str) -> tuple[bytes, bool]:
-    """A plan's figure (``(bytes, cache hit)``); a deleted plan's figures are gone too."""
+def plan_figure(db: Database, plan_id: str, name: str, fmt: str, dpi: float | None = None) -> tuple[bytes, bool]:
+    """A plan's figure (``(bytes, cache hit)``) at ``dpi`` (None: the default); a deleted plan's
+    figures are gone too."""
     with db.session() as session:
         if session.scalar(select(Plan.id).where(Plan.id == plan_id)) is None:
             raise NotFoundError("plan", plan_id)
@@ -63,12 +64,14 @@ def plan_figure(db: Database, plan_id: str, name: str, fmt: str) -> tuple[bytes,
             return plan_data(session, row)
 
     return figures.cached(
-        ("plan", plan_id, name, fmt), lambda: figures.render_plan_figure(figures.plan_data(plan_id, load), name, fmt)
+        ("plan", plan_id, name, fmt, dpi),
+        lambda: figures.render_plan_figure(figures.plan_data(plan_id, load), name, fmt, dpi),
     )
 
 
-def compare_figure(db: Database, name: str, ids: str, fmt: str) -> tuple[bytes, bool]:
-    """Several plans on one figure."""
+def compare_figure(db: Database, name: str, ids: str, fmt: str, dpi: float | None = None) -> tuple[bytes, bool]:
+    """Several plans on one figure: the plan figure ``name`` of each, side by side
+    (:func:`service.figures.fig_compare`); the 3D scene needs the robots."""
     plan_ids = list(dict.fromkeys(i.strip() for i in ids.split(",") if i.strip()))
     if not plan_ids or len(plan_ids) > MAX_COMPARE:
         raise ApiValidationError(
@@ -82,13 +85,13 @@ def compare_figure(db: Database, name: str, ids: str, fmt: str) -> tuple[bytes, 
             for pid in plan_ids:
                 if pid not in rows:
                     raise NotFoundError("plan", pid)
-            data = [figures.plan_data(pid, functools.partial(plan_data, session, rows[pid], False)) for pid in plan_ids]
-        return figures.render_compare_figure(data, fmt)
+            data = [figures.plan_data(pid, functools.partial(plan_data, session, rows[pid])) for pid in plan_ids]
+        return figures.render_compare_figure(data, fmt, dpi, name=name)
 
-    return figures.cached(("compare", name, tuple(plan_ids), fmt), render)
+    return figures.cached(("compare", name, tuple(plan_ids), fmt, dpi), render)
 
 
-def job_figure(db: Database, job_id: str, name: str, fmt: str) -> tuple[bytes, bool]:
+def job_figure(db: Database, job_id: str, name: str, fmt: str, dpi: float | None = None) -> tuple[bytes, bool]:
     """A tuning job's figure, refreshed while the job runs (its version is in the cache key)."""
     with db.session() as session:
         row = session.get(TuningJob, job_id)
@@ -102,10 +105,11 @@ def job_figure(db: Database, job_id: str, name: str, fmt: str) -> tuple[bytes, b
             "id": row.id,
             "status": row.status,
             "method": row.request.get("method"),
+            "objective": row.request.get("objective"),
             "progress": row.progress,
             "history": history,
             "result": row.result,
             "updated_at": row.updated_at.isoformat() if row.updated_at else None,
         }
     version = (job["status"], len(history), job["updated_at"])
-    return figures.cached(("job", job_id, name, fmt, version), lambda: figures.render_job_figure(job, fmt))
+    return figures.cached(("job", job_id, name, fmt, dpi, version), lambda: figures.render_job_figure(job, fmt, dpi))

@@ -143,8 +143,8 @@ def load(session: Session, landscape_id: str) -> Landscape:
     return rows.load(session, Landscape, landscape_id, "landscape")
 
 
-def delete(session: Session, landscape_id: str) -> None:
-    rows.delete(session, Landscape, landscape_id, "landscape")
+def delete(db: Database, landscape_id: str) -> None:
+    rows.delete(db, Landscape, landscape_id, "landscape")
 
 
 def read(session: Session, landscape_id: str) -> bytes:
@@ -152,7 +152,7 @@ def read(session: Session, landscape_id: str) -> bytes:
     return body_json(row, unpack_trajectory(row.grids))
 
 
-def heatmap(db: Database, landscape_id: str, fmt: str) -> tuple[bytes, bool]:
+def heatmap(db: Database, landscape_id: str, fmt: str, dpi: int | None = None) -> tuple[bytes, bool]:
     """The heatmap figure (``(bytes, cache hit)``); a deleted landscape's figure is gone too."""
     with db.session() as session:
         if session.scalar(select(Landscape.id).where(Landscape.id == landscape_id)) is None:
@@ -161,7 +161,12 @@ def heatmap(db: Database, landscape_id: str, fmt: str) -> tuple[bytes, bool]:
     def render() -> bytes:
         with db.session() as session:
             row = load(session, landscape_id)
-            data = {"id": row.id, **row.summary, "grids": unpack_trajectory(row.grids)}
-        return figures.render_landscape_figure(data, fmt)
+            data = {
+                "id": row.id,
+                **row.summary,
+                "objective": row.request.get("objective"),
+                "grids": unpack_trajectory(row.grids),
+            }
+        return figures.render_landscape_figure(data, fmt, dpi)
 
-    return figures.cached(("landscape", landscape_id, fmt), render)
+    return figures.cached(("landscape", landscape_id, fmt, dpi), render)

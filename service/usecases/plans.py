@@ -18,12 +18,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import func, select
+from pydantic import ValidationError
+from sqlalchemy import ColumnElement, func, or_, select
 from sqlalchemy.orm import Session
 
 from engine import DurationSearch, Inverse, PlanResult, PlanSetup, RobotModel, replay, run_plan, shortest_duration
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
-from service.errors import ApiValidationError, NotFoundError
+from service.errors import ApiValidationError, NotFoundError, body_invalid
 from service.infra import jsonio
 from service.infra.db import Database
 from service.infra.metrics import count_plan
@@ -38,6 +39,7 @@ from service.schemas.plans import (
     DurationSearchOut,
     PlanList,
     PlanRequest,
+    PlanRerun,
     PlanSummary,
     ReplayOut,
     ShortestDurationRequest,
@@ -58,14 +60,21 @@ def _quaternions(R: np.ndarray) -> np.ndarray:
     return out
 
 
-def record_of(result: PlanResult, prismatic: np.ndarray) -> dict[str, np.ndarray]:
+def record_of(result: PlanResult, model: RobotModel) -> dict[str, np.ndarray]:
     """The stored record of a plan: its arrays in SI units by their engine names, attitudes as
-    unit quaternions ``[w, x, y, z]``, and ``prismatic (n,)`` (1.0 for a prismatic joint)."""
+    unit quaternions ``[w, x, y, z]``, the executed trajectory's accelerations, torques (forces)
+    and mount wrench, ``prismatic (n,)`` (1.0 for a prismatic joint) and the robot's
+    ``effort_limit (n,)`` when planned (N m or N, inf: none; for the figures)."""
     return {
+        "prismatic": np.asarray(model.prismatic, dtype=float),
+        "effort_limit": np.asarray(model.effort_limits, dtype=float),
+        "qdd": result.joint_accelerations,
+        "tau": result.joint_torques,
+        "mount_force": result.mount_force,
+        "mount_torque": result.mount_torque,
         "t": result.t,
         "q": result.q,
         "qd": result.qd,
-        "prismatic": np.asarray(prismatic, dtype=float),
         "base_position": result.base_position,
         "base_attitude": _quaternions(result.base_attitude),
         "ee_position": result.ee_position,
@@ -149,6 +158,7 @@ class Planned:
 
     row: Plan
     record: dict[str, np.ndarray]
+    joint_names: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -161,10 +171,14 @@ class Prepared:
     inverse: Inverse
 
 
-def prepare(db: Database, body: PlanRequest) -> Prepared:
-    """Resolve the robot and convert the request: 422s name the API field the engine refused."""
-    with db.session() as session:  # no connection held while planning
-        robot_id, model = robots.resolve(session, body.robot_id, body.robot)
+def prepare(db: Database | None, body: PlanRequest) -> Prepared:
+    """Resolve the robot (without a database: a preset or the inline robot) and convert the
+    request: 422s name the API field the engine refused."""
+    if db is None:
+        robot_id, model = robots.resolve_preset(body.robot_id, body.robot)
+    else:
+        with db.session() as session:  # no connection held while planning
+            robot_id, model = robots.resolve(session, body.robot_id, body.robot)
     with located(body.task, "body", "task"):
         task = body.task.to_engine(model)
     with located(body.method, "body", "method"):
@@ -181,7 +195,7 @@ def finish(
     skipped = replay_skip_reason(result, settings.max_replay_steps) if body.replay else None
     checked = replay(prepared.model, result) if body.replay and skipped is None else None
     replayed = ReplayOut.from_engine(checked) if checked is not None else ReplayOut.skipped(skipped) if skipped else None
-    record = record_of(result, prepared.model.prismatic)
+    record = record_of(result, prepared.model)
     row = Plan(
         robot_id=prepared.robot_id,
         request=request,
@@ -193,11 +207,11 @@ def finish(
         replay=replayed.model_dump(mode="json") if replayed is not None else None,
         elapsed_s=time.perf_counter() - started,
     )
-    return Planned(row, record)
+    return Planned(row, record, prepared.model.joint_names)
 
 
-def compute(db: Database, settings: Settings, body: PlanRequest) -> Planned:
-    """Plan (and replay) a request."""
+def compute(db: Database | None, settings: Settings, body: PlanRequest) -> Planned:
+    """Plan (and replay) a request (``db`` None: without a database, see :func:`prepare`)."""
     started = time.perf_counter()
     prepared = prepare(db, body)
     result = run_plan(prepared.setup, prepared.inverse)
@@ -236,7 +250,25 @@ def store(db: Database, settings: Settings, planned: Planned) -> Plan:
     return row
 
 
-SUMMARY_COLUMNS = (Plan.id, Plan.robot_id, Plan.method, Plan.success, Plan.message, Plan.metrics, Plan.elapsed_s, Plan.created_at)
+SUMMARY_COLUMNS = (
+    Plan.id,
+    Plan.robot_id,
+    Plan.request,
+    Plan.method,
+    Plan.success,
+    Plan.message,
+    Plan.metrics,
+    Plan.elapsed_s,
+    Plan.created_at,
+)
+
+
+def asked(stored: dict[str, Any] | None) -> PlanRequest | None:
+    """A stored request as this version reads it (None if it cannot: a plan from an older version)."""
+    try:
+        return PlanRequest.model_validate(stored)
+    except ValidationError:
+        return None
 
 
 def summary(row: Plan | Any) -> PlanSummary:
@@ -245,6 +277,7 @@ def summary(row: Plan | Any) -> PlanSummary:
         {
             "id": row.id,
             "robot_id": row.robot_id,
+            "request": asked(row.request),
             "method": row.method,
             "success": row.success,
             "message": row.message,
@@ -267,10 +300,86 @@ def body_json(plan_summary: PlanSummary, sections: set[str], record: dict[str, n
     return jsonio.dumps_large({**plan_summary.model_dump(mode="json"), **ordered})
 
 
-def listing(session: Session, limit: int, offset: int) -> PlanList:
-    total = session.scalar(select(func.count()).select_from(Plan)) or 0
-    rows = session.execute(select(*SUMMARY_COLUMNS).order_by(Plan.created_at.desc(), Plan.id).limit(limit).offset(offset)).all()
+@dataclass(frozen=True)
+class PlanFilter:
+    """What a plan list keeps (None: any): the stored robot, the path type, the method, the verdict."""
+
+    robot_id: str | None = None
+    path_type: str | None = None
+    method: str | None = None
+    success: bool | None = None
+
+    def where(self) -> list[ColumnElement[bool]]:
+        """SQL conditions on the stored JSON (``json_extract`` on SQLite, ``->>`` on PostgreSQL)."""
+        out: list[ColumnElement[bool]] = []
+        if self.robot_id is not None:
+            out.append(Plan.robot_id == self.robot_id)
+        if self.path_type is not None:
+            kind = Plan.request[("task", "path", "type")].as_string()
+            # requests stored before paths existed have none: they are lines
+            out.append(or_(kind == self.path_type, kind.is_(None)) if self.path_type == "line" else kind == self.path_type)
+        if self.method is not None:
+            out.append(Plan.method["name"].as_string() == self.method)
+        if self.success is not None:
+            out.append(Plan.success.is_(self.success))
+        return out
+
+
+def listing(session: Session, limit: int, offset: int, kept: PlanFilter | None = None) -> PlanList:
+    """A page of the plans ``kept`` keeps (all by default), newest first, and how many it keeps."""
+    where = (kept or PlanFilter()).where()
+    total = session.scalar(select(func.count()).select_from(Plan).where(*where)) or 0
+    rows = session.execute(
+        select(*SUMMARY_COLUMNS).where(*where).order_by(Plan.created_at.desc(), Plan.id).limit(limit).offset(offset)
+    ).all()
     return PlanList(items=[summary(r) for r in rows], total=total)
+
+
+#: Objects a merge patch replaces whole when this member differs from the stored one's (None: always).
+REPLACED_WHEN_CHANGED: dict[tuple[str, ...], str | None] = {("task", "path"): "type", ("method",): "name", ("robot",): None}
+#: Request members of which exactly one is given: giving one drops the other.
+EITHER = ("robot_id", "robot")
+
+
+def merge_patch(target: Any, patch: Any, at: tuple[str, ...] = ()) -> Any:
+    """RFC 7396's MergePatch(target, patch), with :class:`service.schemas.plans.PlanRerun`'s
+    additions: an object of :data:`REPLACED_WHEN_CHANGED` whose tag changes (or the inline robot)
+    is replaced whole, and one of :data:`EITHER` given drops the other. A dozen lines, so written here rather than taken
+    from a package (json-merge-patch implements RFC 7386 without the additions)."""
+    if not isinstance(patch, dict):
+        return patch
+    replaced = at in REPLACED_WHEN_CHANGED
+    tag = REPLACED_WHEN_CHANGED.get(at)
+    if not isinstance(target, dict) or (replaced and (tag is None or (tag in patch and patch[tag] != target.get(tag)))):
+        target = {}
+    out = dict(target)
+    if not at:
+        for name in EITHER:
+            if patch.get(name) is not None:
+                out.pop(next(other for other in EITHER if other != name), None)
+    for name, value in patch.items():
+        if value is None:
+            out.pop(name, None)
+        else:
+            out[name] = merge_patch(out.get(name), value, (*at, name))
+    return out
+
+
+def request_of(db: Database, body: dict[str, Any]) -> PlanRequest:
+    """The plan request of a ``POST /v1/plans`` body: a plan request, or a :class:`PlanRerun`
+    merged into its stored plan's request; validation errors under ``body`` as FastAPI's own
+    (validated as FastAPI validates a typed body: the parsed JSON, strictly)."""
+    try:
+        if "from_plan_id" not in body:
+            return PlanRequest.model_validate(body)
+        rerun = PlanRerun.model_validate(body)
+        with db.session() as session:
+            stored = session.scalar(select(Plan.request).where(Plan.id == rerun.from_plan_id))
+        if stored is None:
+            raise NotFoundError("plan", rerun.from_plan_id)
+        return PlanRequest.model_validate(merge_patch(stored, rerun.patch()))
+    except ValidationError as exc:
+        raise body_invalid(exc) from None
 
 
 def read(session: Session, plan_id: str, sections: set[str]) -> bytes:
@@ -285,8 +394,8 @@ def read(session: Session, plan_id: str, sections: set[str]) -> bytes:
     return body_json(summary(found), sections, record, found.replay)
 
 
-def delete(session: Session, plan_id: str) -> None:
-    rows.delete(session, Plan, plan_id, "plan")
+def delete(db: Database, plan_id: str) -> None:
+    rows.delete(db, Plan, plan_id, "plan")
 
 
 def parse_sections(fields: str | None) -> set[str]:

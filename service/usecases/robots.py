@@ -1,9 +1,16 @@
 """Robots: the robot a request names (stored or inline), stored robots and their views, the
-presets every database starts with, and the GJM at a state."""
+presets every database starts with, and the GJM at a state.
+
+Every robot goes through one validation, whatever its source (:func:`service.schemas.robots.model_of`):
+a new one's response is built from the row about to be stored, before the transaction commits,
+so nothing is stored that cannot be served. A row stored by an older version that this one
+cannot use is isolated: its own requests answer a 409 that says why (a request naming it as
+``robot_id``, a 422), and lists leave it out."""
 
 from __future__ import annotations
 
 import functools
+import logging
 from collections.abc import Callable
 from typing import Any
 
@@ -12,16 +19,28 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from engine import RobotModel, generalized_jacobian
-from service.errors import ApiValidationError, ConflictError
+from engine.errors import ParameterError
+from service.errors import ApiError, ApiValidationError, ConflictError
 from service.infra import jsonio
 from service.infra.db import Database
 from service.infra.quota import check_quota
-from service.models import Robot
+from service.models import Robot, new_id, utcnow
 from service.schemas.common import located
 from service.schemas.robots import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams, RobotUrdfIn, model_of
 from service.usecases import rows
 
 PRESET_ROBOT_ID = "table1"
+log = logging.getLogger("spacearm.api")
+
+
+class UnusableRobotError(ConflictError):
+    """A stored robot whose parameters do not pass the validation of robots (stored by an older
+    version): a 409 of its own, never a failing list."""
+
+    def __init__(self, robot_id: str, reason: str) -> None:
+        super().__init__(
+            f"robot {robot_id!r} is stored with parameters this service cannot use ({reason}): delete it and store it again"
+        )
 
 
 def preset_robots() -> dict[str, Callable[[], RobotModel]]:
@@ -61,49 +80,89 @@ def resolve(session: Session, robot_id: str | None, inline: RobotParams | None) 
             "give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
             [{"loc": ["body", "robot_id"], "msg": "robot_id or robot is required"}],
         )
-    return robot_id, model_of(load(session, robot_id).parameters)
+    try:
+        return robot_id, stored_model(load(session, robot_id))
+    except UnusableRobotError as exc:
+        raise ApiValidationError(exc.detail, [{"loc": ["body", "robot_id"], "msg": exc.detail}]) from None
+
+
+def stored_model(robot: Robot) -> RobotModel:
+    """The model of a stored robot, or its own 409 (:class:`UnusableRobotError`)."""
+    try:
+        return model_of(robot.parameters)
+    except ParameterError as exc:
+        raise UnusableRobotError(robot.id, f"{exc.field}: {exc.reason}") from None
+
+
+def resolve_preset(robot_id: str | None, inline: RobotParams | None) -> tuple[str | None, RobotModel]:
+    """As :func:`resolve` without a database (``spacearm plan``): the inline robot, or a preset."""
+    if inline is not None or robot_id is None:
+        return resolve(None, robot_id, inline)  # type: ignore[arg-type]  # no session needed
+    build = preset_robots().get(robot_id)
+    if build is None:
+        presets = ", ".join(preset_robots())
+        raise ApiError(404, f"robot {robot_id!r} is not a preset ({presets}): without a server, give a preset or an inline robot")
+    return robot_id, build()
 
 
 def view(robot: Robot) -> RobotOut:
-    return RobotOut.from_engine(
-        robot.id, robot.name, robot.preset, robot.parameters, robot.created_at, model_of(robot.parameters)
-    )
+    return RobotOut.from_engine(robot.id, robot.name, robot.preset, robot.parameters, robot.created_at, stored_model(robot))
 
 
 def listing(session: Session, limit: int, offset: int) -> RobotList:
+    """A page of robots; a row that cannot be shown is left out (and logged), the others are listed."""
     total = session.scalar(select(func.count()).select_from(Robot)) or 0
     rows = session.scalars(select(Robot).order_by(Robot.created_at, Robot.id).limit(limit).offset(offset)).all()
-    return RobotList(items=[view(r) for r in rows], total=total)
+    items = []
+    for row in rows:
+        try:
+            items.append(view(row))
+        except UnusableRobotError as exc:
+            log.warning("left out of the robot list: %s", exc.detail)
+    return RobotList(items=items, total=total)
 
 
 def create(session: Session, quota_bytes: int | None, body: RobotParams | RobotUrdfIn) -> RobotOut:
-    """Store a robot given by parameters or by URDF (stored as the parameter set derived from it)."""
+    """Store a robot given by parameters or by URDF (stored as the parameter set derived from it).
+    The answer is built (and so checked) from the row before it is committed: a robot that could
+    not be shown is never stored."""
     with located(body, "body"):
         model = body.to_engine()
     parameters = jsonio.clean(model.to_dict())
     check_quota(session, quota_bytes, len(jsonio.dumps(parameters)))
-    robot = Robot(name=model.name, parameters=parameters, preset=False)
+    robot = Robot(id=new_id(), name=model.name, parameters=parameters, preset=False, created_at=utcnow())
+    created = view(robot)
     session.add(robot)
     session.commit()  # before the response goes out: a client's next request must see it
-    return view(robot)
+    return created
 
 
-def delete(session: Session, robot_id: str) -> None:
-    robot = load(session, robot_id)
-    if robot.preset:
-        raise ConflictError(f"robot {robot_id!r} is a preset and cannot be deleted")
-    session.delete(robot)
-    session.commit()
+def delete(db: Database, robot_id: str) -> None:
+    """Delete a robot (presets cannot be; also on a full disk: :meth:`Database.freeing`)."""
+
+    def remove(session: Session) -> None:
+        robot = load(session, robot_id)
+        if robot.preset:
+            raise ConflictError(f"robot {robot_id!r} is a preset and cannot be deleted")
+        session.delete(robot)
+
+    db.freeing(lambda: db.write(remove))
 
 
 def urdf(session: Session, robot_id: str) -> str:
-    return model_of(load(session, robot_id).parameters).to_urdf()
+    return stored_model(load(session, robot_id)).to_urdf()
 
 
 def jacobian(session: Session, robot_id: str, body: JacobianRequest) -> JacobianOut:
-    model = model_of(load(session, robot_id).parameters)
+    """The GJM at a state; a GJM that is not finite (masses too small for double precision) is a
+    422 with the engine's message."""
+    model = stored_model(load(session, robot_id))
     with located(body, "body"):
-        return JacobianOut.from_engine(generalized_jacobian(model, body.to_engine(model)))
+        gjm = generalized_jacobian(model, body.to_engine(model))
+    if not gjm.success:
+        msg = f"robot {robot_id!r}: {gjm.message}"
+        raise ApiValidationError(msg, [{"loc": ["path", "robot_id"], "msg": gjm.message}])
+    return JacobianOut.from_engine(gjm)
 
 
 def parameters_of(body: dict[str, Any]) -> type[RobotParams] | type[RobotUrdfIn]:

@@ -8,6 +8,7 @@ from sqlalchemy import delete as sql_delete
 from sqlalchemy.orm import Session
 
 from service.errors import NotFoundError
+from service.infra.db import Database
 from service.models import Base
 
 RowT = TypeVar("RowT", bound=Base)
@@ -21,8 +22,13 @@ def load(session: Session, model: type[RowT], row_id: str, kind: str) -> RowT:
     return row
 
 
-def delete(session: Session, model: type[Base], row_id: str, kind: str) -> None:
-    """Delete the row ``row_id`` of ``model``, or a 404 naming the ``kind``."""
+def delete(db: Database, model: type[Base], row_id: str, kind: str) -> None:
+    """Delete the row ``row_id`` of ``model`` in a transaction of its own (also on a full disk:
+    :meth:`Database.freeing`), or a 404 naming the ``kind``."""
     statement = sql_delete(model).where(model.__table__.c.id == row_id)
-    if session.execute(statement).rowcount == 0:  # type: ignore[attr-defined]
-        raise NotFoundError(kind, row_id)
+
+    def remove(session: Session) -> None:
+        if session.execute(statement).rowcount == 0:  # type: ignore[attr-defined]
+            raise NotFoundError(kind, row_id)
+
+    db.freeing(lambda: db.write(remove))

@@ -43,8 +43,8 @@ MAX_JOB_JOINT_STEPS = 7_000_000_000
 
 def planned_evaluations(body: TuningJobRequest) -> int:
     """The plan evaluations a job may need: every individual of every generation (and the initial
-    population) on every task, twice with the DLS baseline."""
-    return body.ga.population * (body.ga.generations + 1) * len(body.tasks) * (2 if body.compare_with_dls else 1)
+    population) on every task, for each phase (the DLS baseline and the bounded inverse, if asked)."""
+    return body.ga.population * (body.ga.generations + 1) * len(body.tasks) * len(body.phases())
 
 
 def planned_joint_steps(body: TuningJobRequest, problems: Sequence[TuningProblem], model: RobotModel) -> int:
@@ -56,7 +56,8 @@ def planned_joint_steps(body: TuningJobRequest, problems: Sequence[TuningProblem
 def check(model: RobotModel, body: TuningJobRequest) -> list[TuningProblem]:
     """Everything the GA would refuse, checked up front so that a bad job is a 422, not a
     failure; the job's engine problems (one per phase)."""
-    twice = " * 2 (compare_with_dls)" if body.compare_with_dls else ""
+    count = len(body.phases())
+    twice = f" * {count} (phases: compare_with_dls, compare_with_bounded)" if count > 1 else ""
     evaluations = planned_evaluations(body)
     if evaluations > MAX_PLAN_EVALUATIONS:
         msg = f"population * (generations + 1) * tasks{twice} = {evaluations} plan evaluations, at most {MAX_PLAN_EVALUATIONS}"
@@ -94,13 +95,15 @@ def links(job_id: str) -> JobLinks:
 
 
 def phases(request: dict[str, Any], rows: Sequence[JobGeneration]) -> list[JobPhase]:
-    """The GA runs of a job (its method, then the DLS baseline if asked) with their history
+    """The GA runs of a job (its method, then the DLS baseline and the bounded inverse if asked) with their history
     (the rows of the job's current attempt)."""
     method = str(request.get("method", "adaptive"))
     generations = int((request.get("ga") or {}).get("generations", 50))
     roles: list[tuple[str, PhaseRole]] = [(method, "tuned")]
     if request.get("compare_with_dls", True):
         roles.append(("dls", "dls_baseline"))
+    if request.get("compare_with_bounded", False) and method != "bounded":
+        roles.append(("bounded", "bounded_baseline"))
     by_role: dict[str, list[HistoryRecord]] = {}
     for row in rows:
         record = HistoryRecord(generation=row.generation, best=row.best, mean=row.mean, feasible=row.feasible)
@@ -155,6 +158,7 @@ def view(job: TuningJob, rows: Sequence[JobGeneration]) -> TuningJobOut:
         method=job.request.get("method", "adaptive"),
         progress=JobProgress(**progress, phases=job_phases),
         attempts=job.attempts,
+        worker_id=job.worker_id,
         max_attempts=job.max_attempts,
         cancel_requested=job.cancel_requested,
         error=job.error,
@@ -202,21 +206,23 @@ def submit(db: Database, settings: Settings, body: TuningJobRequest, idempotency
                 return _replayed(session, existing, idempotency_key, digest)
         robot_id, model = robots.resolve(session, body.robot_id, body.robot)
         check(model, body)
-        queued = session.scalar(select(func.count()).select_from(TuningJob).where(TuningJob.status == "queued")) or 0
+        check_quota(session, settings.storage_quota_bytes, len(jsonio.dumps(body.stored())))
+
+    def insert(s: Session) -> TuningJob:
+        # Counted inside the transaction that inserts, which submissions take one at a time
+        # (Database.hold): two submissions never both see room for one more job.
+        queued = s.scalar(select(func.count()).select_from(TuningJob).where(TuningJob.status == "queued")) or 0
         if queued >= settings.max_queued_jobs:
             raise TooManyRequestsError(
                 f"{queued} tuning jobs are queued (at most {settings.max_queued_jobs}); retry later", RETRY_AFTER_S
             )
-        check_quota(session, settings.storage_quota_bytes, len(jsonio.dumps(body.stored())))
-
-    def insert(s: Session) -> TuningJob:
         job = TuningJob(
             status="queued",
             robot_id=robot_id,
             request=body.stored(),
             progress={
                 "generation": 0,
-                "generations": body.ga.generations * (2 if body.compare_with_dls else 1),
+                "generations": body.ga.generations * len(body.phases()),
                 "evaluations": 0,
             },
             attempts=0,
@@ -229,7 +235,7 @@ def submit(db: Database, settings: Settings, body: TuningJobRequest, idempotency
         return job
 
     try:
-        job = db.write(insert)  # in its own transaction (retried if SQLite is locked)
+        job = db.write(insert, exclusive="tuning-job-submissions")  # its own transaction (retried if SQLite is locked)
     except IntegrityError:  # the same key raced in from another request
         with db.session() as s:
             existing = s.scalar(select(TuningJob).where(TuningJob.idempotency_key == idempotency_key))
@@ -240,10 +246,17 @@ def submit(db: Database, settings: Settings, body: TuningJobRequest, idempotency
 
 
 def result(session: Session, job_id: str) -> TuningJobResult:
+    """A job's result: a succeeded job's, or the best-so-far of a cancelled one (``status``
+    ``cancelled``); a 409 for any other job, and for a job cancelled before its first generation."""
     job = load(session, job_id)
-    if job.status != "succeeded" or job.result is None:
+    if job.status not in ("succeeded", "cancelled") or job.result is None:
         extra = f": {job.error}" if job.error else ""
-        raise ConflictError(f"tuning job {job_id!r} is {job.status}, the result exists once it succeeded{extra}")
+        if job.status == "cancelled":
+            extra = ": it was cancelled before its GA finished a generation"
+        raise ConflictError(
+            f"tuning job {job_id!r} is {job.status}; a result exists once it succeeded, "
+            f"or once it is cancelled after a generation{extra}"
+        )
     return TuningJobResult.model_validate(job.result)
 
 
@@ -256,11 +269,15 @@ def cancel(db: Database, session: Session, job_id: str) -> TuningJobOut:
     return get(session, job_id)
 
 
-def delete(db: Database, session: Session, job_id: str) -> None:
-    """Delete a job (its generation rows with it); a queued or running one is cancelled first."""
-    job = load(session, job_id)
-    running = job.status not in queue.TERMINAL
-    session.rollback()  # end the read: SQLite cannot turn a read that another write overtook into a write
-    if running:
-        queue.request_cancel(db, job_id)
-    session.execute(sql_delete(TuningJob).where(TuningJob.id == job_id))
+def delete(db: Database, job_id: str) -> None:
+    """Delete a job (its generation rows with it); a queued or running one is cancelled first.
+    Also on a full disk (:meth:`Database.freeing`)."""
+
+    def run() -> None:
+        with db.session() as session:
+            running = load(session, job_id).status not in queue.TERMINAL
+        if running:
+            queue.request_cancel(db, job_id)
+        db.write(lambda session: session.execute(sql_delete(TuningJob).where(TuningJob.id == job_id)))
+
+    db.freeing(run)

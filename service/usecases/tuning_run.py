@@ -195,6 +195,36 @@ class _Job:
         return result_of(problem, ga, self.termination, time.perf_counter() - started, seed, interrupted)
 
 
+def cancelled_result(body: TuningJobRequest, results: list[TuneResult], evaluations: int) -> dict[str, Any] | None:
+    """The result a cancelled job keeps: the best parameters its GA found before it stopped (and
+    the DLS baseline's, if that phase had finished a generation); None if no generation of the
+    tuned method finished."""
+    if not results or not results[0].history:
+        return None
+    by_role = {role: result for result, (_, role, _) in zip(results, body.phases(), strict=False) if result.history}
+    tuned = results[0]
+    generations = body.ga.generations
+    parts = [f"cancelled after generation {tuned.history[-1].generation} of {generations} of the {tuned.method} GA"]
+    for role, what in (("dls_baseline", "the DLS baseline"), ("bounded_baseline", "the bounded inverse")):
+        done = by_role.get(role)
+        if done is not None:
+            parts.append(f"and generation {done.history[-1].generation} of {generations} of {what}'s")
+        elif any(r == role for _, r, _ in body.phases()):
+            parts.append(f"before {what}'s GA finished a generation (no {role.replace('_', ' ')})")
+    message = " ".join(parts) + ": the best parameters found by then"
+    outcome = TuningJobResult.from_engine(
+        tuned,
+        by_role.get("dls_baseline"),
+        evaluations,
+        sum(r.elapsed_s for r in results),
+        status="cancelled",
+        message=message,
+        bounded=by_role.get("bounded_baseline"),
+    )
+    stored: dict[str, Any] = jsonio.clean(outcome.model_dump(mode="json", by_alias=True))
+    return stored
+
+
 def run_job(
     db: Database,
     claim: queue.Claim,
@@ -248,7 +278,8 @@ def run_job(
     if reason is not None:
         log.info("job %s stopped: %s", claim.job_id, reason)
         if reason == "cancel":
-            ok = job.retry(lambda: queue.mark_cancelled(db, claim), "cancelling it")
+            best = cancelled_result(body, results, evaluations)
+            ok = job.retry(lambda: queue.mark_cancelled(db, claim, best), "cancelling it")
             return "cancelled" if ok else "lost"
         if reason in ("shutdown", "database"):
             return job.give_back()
@@ -257,8 +288,14 @@ def run_job(
     tuned = results[0]
     if not tuned.success:
         return job.fail(tuned.message)
-    baseline = results[1] if len(results) > 1 else None
-    outcome = TuningJobResult.from_engine(tuned, baseline, evaluations, sum(r.elapsed_s for r in results))
+    by_role = {role: result for result, (_, role, _) in zip(results, body.phases(), strict=True)}
+    outcome = TuningJobResult.from_engine(
+        tuned,
+        by_role.get("dls_baseline"),
+        evaluations,
+        sum(r.elapsed_s for r in results),
+        bounded=by_role.get("bounded_baseline"),
+    )
     final = jsonio.clean(
         {
             "generation": body.ga.generations * len(problems),

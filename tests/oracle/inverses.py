@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
+from oracle.spatial import FloatArray
 
 from engine import inverses as engine_inverses
-from oracle.spatial import FloatArray
 
 _TINY = 1e-300
 
@@ -292,6 +292,7 @@ CLASSES: dict[str, type] = {
     "wdls": WeightedDLS,
     "sdls": SelectivelyDampedLS,
     "svf": SingularValueFiltering,
+    "bounded": DampedLeastSquares,  # without a joint state (no box) the bounded inverse is DLS
 }
 
 

@@ -20,10 +20,10 @@ the same expression regrouped.
 from __future__ import annotations
 
 import numpy as np
-
-from engine.model import RobotModel
 from oracle.kinematics import Kinematics, _weighted_sum, chain_constants
 from oracle.spatial import FloatArray
+
+from engine.model import RobotModel
 
 
 def gjm_batch(model: RobotModel, kin: Kinematics) -> tuple[FloatArray, FloatArray]:

@@ -12,10 +12,10 @@ on the batch size, so a configuration gets bit-identical results alone or in any
 from __future__ import annotations
 
 import numpy as np
+from oracle.spatial import FloatArray, skew
 
 from engine.kinematics import Kinematics
 from engine.model import RobotModel
-from oracle.spatial import FloatArray, skew
 
 # Columns of the per-joint product A_j R~_j (R~_j is the joint rotation R_j extended by
 # constant columns, see _ChainConstants.joint_terms): A_{j+1} (3 columns), then

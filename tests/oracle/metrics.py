@@ -4,10 +4,10 @@
 from __future__ import annotations
 
 import numpy as np
+from oracle.spatial import FloatArray
 
 from engine.errors import ParameterError
 from engine.metrics import AGGREGATIONS, Column, Metrics, Objective
-from oracle.spatial import FloatArray
 
 
 def aggregate(errors: FloatArray, aggregation: str) -> FloatArray:
@@ -100,5 +100,14 @@ def compute_metrics(
         position_limit_excess=np.full(rows.shape, np.nan),
         base_rotation_max=np.full(rows.shape, np.nan),
         base_rotation_final=np.full(rows.shape, np.nan),
+        max_joint_torque=np.full(rows.shape, np.nan),  # the oracle plans kinematics only
+        max_joint_torque_joint=none,
+        max_joint_force=np.full(rows.shape, np.nan),
+        max_joint_force_joint=none,
+        joint_torque_limit_respected=np.ones(rows.shape, dtype=bool),
+        torque_limit_joint=none,
+        time_torque_limit_exceeded=np.full(rows.shape, np.nan),
+        torque_limit_peak=np.full(rows.shape, np.nan),
+        dynamics_computed=np.zeros(rows.shape),
         tracks="pose",
     )

@@ -18,6 +18,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from oracle.inverses import SVD, thin_svd
+from oracle.jacobian import gjm_batch
+from oracle.kinematics import kinematics_about_com, kinematics_batch, system_com
+from oracle.metrics import Objective, compute_metrics
+from oracle.spatial import FloatArray, exp_so3, log_so3
 
 from engine.errors import ParameterError
 from engine.inverses import make_inverse
@@ -27,11 +32,6 @@ from engine.model import RobotModel
 from engine.planner import ATTITUDE_TOLERANCE_RAD, POSITION_TOLERANCE_M, PlanOptions, PlanResult, _verdict
 from engine.redundancy import joint_centres
 from engine.trajectory import TRACKS, CartesianTask
-from oracle.inverses import SVD, thin_svd
-from oracle.jacobian import gjm_batch
-from oracle.kinematics import kinematics_about_com, kinematics_batch, system_com
-from oracle.metrics import Objective, compute_metrics
-from oracle.spatial import FloatArray, exp_so3, log_so3
 
 SUBSTEP_ANGLE = 0.25
 MAX_SUBSTEPS = 64
@@ -269,6 +269,10 @@ def plan(
         singular_values=trace.singular_values[0],
         det_J_g=trace.det_J_g[0],
         damping=trace.damping[0],
+        joint_accelerations=np.full_like(trace.q[0], np.nan),  # the oracle plans kinematics only
+        joint_torques=np.full_like(trace.q[0], np.nan),
+        mount_force=np.full((trace.t.shape[0], 3), np.nan),
+        mount_torque=np.full((trace.t.shape[0], 3), np.nan),
         metrics=metrics,
         success=success,
         message=message,

@@ -11,13 +11,13 @@ quaternion, the base position as a state (not from the fixed CoM, so CoM drift i
 from __future__ import annotations
 
 import numpy as np
+from oracle.kinematics import Kinematics, chain_constants, kinematics_batch
+from oracle.spatial import FloatArray, matrix_to_quaternion, quaternion_to_matrix, skew
 from scipy.integrate import solve_ivp
 
 from engine.model import RobotModel
 from engine.planner import PlanResult
 from engine.replay import ReplayResult, summarise
-from oracle.kinematics import Kinematics, chain_constants, kinematics_batch
-from oracle.spatial import FloatArray, matrix_to_quaternion, quaternion_to_matrix, skew
 
 RTOL = 1e-11
 ATOL = 1e-13

@@ -47,7 +47,7 @@ def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 def test_every_option_has_help_with_its_default() -> None:
     parser = build_parser()
     commands = _subparsers(parser)
-    assert set(commands) == {"migrate", "serve", "worker", "run"}
+    assert set(commands) == {"migrate", "serve", "worker", "run", "plan"}
     for name, sub in commands.items():
         for action in sub._actions:
             if isinstance(action, argparse._HelpAction):

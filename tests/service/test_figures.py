@@ -15,7 +15,17 @@ from tests.service.conftest import PAPER_TASK, Stack, job_body, wait_status
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SVG_NS = "{http://www.w3.org/2000/svg}"
-TIME_FIGURES = ["ee-velocity", "gjm-determinant", "joint-velocities", "joint-angles", "tracking-errors", "base-motion", "damping"]
+TIME_FIGURES = [
+    "ee-velocity",
+    "gjm-determinant",
+    "joint-velocities",
+    "joint-angles",
+    "tracking-errors",
+    "base-motion",
+    "damping",
+    "joint-torques",
+    "carrier-wrench",
+]
 PLAN_NAMES = [*TIME_FIGURES, "scene-3d"]
 
 
@@ -109,11 +119,22 @@ def test_compare_tracking_errors(client: httpx.Client, plans: dict[str, str]) ->
     assert_png(client.get("/v1/plans/compare/figures/tracking-errors", params={"ids": ids, "format": "png"}))
     r = client.get("/v1/plans/compare/figures/tracking-errors", params={"ids": f"{plans['dls']},missing"})
     assert r.status_code == 404
-    assert client.get("/v1/plans/compare/figures/joint-angles", params={"ids": ids}).status_code == 404
+    r = client.get("/v1/plans/compare/figures/nope", params={"ids": ids})
+    assert r.status_code == 404 and r.json()["valid_names"] == PLAN_NAMES
     assert client.get("/v1/plans/compare/figures/tracking-errors", params={"ids": ","}).status_code == 422
     # the plan routes are not shadowed
     assert client.get(f"/v1/plans/{plans['dls']}").status_code == 200
     assert client.get("/v1/plans/compare").status_code == 404
+
+
+@pytest.mark.parametrize("name", PLAN_NAMES)
+def test_compare_every_plan_figure(client: httpx.Client, plans: dict[str, str], name: str) -> None:
+    """Any plan figure compares plans (the paper's Fig. 9: joint velocities of DLS and adaptive
+    damping side by side), each plan's column titled by its method and id."""
+    ids = f"{plans['dls']},{plans['adaptive']}"
+    text = svg_text(assert_svg(client.get(f"/v1/plans/compare/figures/{name}", params={"ids": ids})))
+    assert plans["dls"][:8] in text and plans["adaptive"][:8] in text
+    assert "dls" in text and "adaptive" in text
 
 
 def test_job_convergence_figure(client: httpx.Client) -> None:
@@ -135,7 +156,7 @@ def test_openapi_lists_figures_not_pages(client: httpx.Client) -> None:
     paths = doc["paths"]
     op = paths["/v1/plans/{plan_id}/figures/{name}"]["get"]
     assert op["operationId"] == "get_plan_figure"
-    assert set(op["responses"]["200"]["content"]) == {"image/svg+xml", "image/png"}
+    assert set(op["responses"]["200"]["content"]) == {"image/svg+xml", "image/png", "application/pdf"}
     assert "/v1/tuning-jobs/{job_id}/figures/{name}" in paths
     assert "/v1/plans/compare/figures/{name}" in paths
     assert "/" not in paths and "/plans/{plan_id}" not in paths and "/web/plans" not in paths

@@ -117,11 +117,30 @@ def test_generated_python_client_runs_the_whole_flow(stack: Stack, spacearm_clie
     summary = _op("plans", "get_plan").sync(plan_id=plan.id, client=api, fields="")
     assert isinstance(summary, m.PlanOut) and summary.id == plan.id
     assert isinstance(summary.trajectory, types.Unset) and summary.metrics.objective_b == plan.metrics.objective_b
+    # what it was asked (typed), the list filtered, the plan again with changes
+    assert isinstance(plan.request, m.PlanRequestStoredRobot) and plan.request.method.name is m.MethodName.ADAPTIVE
+    listed = _op("plans", "list_plans").sync(client=api, method=m.MethodName.ADAPTIVE, path_type=m.PathType.LINE, success=True)
+    assert isinstance(listed, m.PlanList) and plan.id in [p.id for p in listed.items]
+    rerun_body = m.PlanRerun.from_dict({"from_plan_id": plan.id, "method": {"name": "dls"}, "replay": False})
+    rerun = _op("plans", "create_plan").sync(client=api, body=rerun_body, fields="")
+    assert isinstance(rerun, m.PlanOut) and rerun.method.name is m.MethodName.DLS, rerun
+    # the trajectory in every format as bytes (a File); the ROS message read by its typed model
+    export = _op("plans", "get_plan_trajectory")
+    csv_file = export.sync(plan_id=plan.id, client=api, format_=m.TrajectoryFormat.CSV)
+    csv_text = csv_file.payload.read().decode()
+    assert csv_text.startswith("t_s,") and len(csv_text.strip().splitlines()) == 62  # a header and 61 samples
+    mat = export.sync(plan_id=plan.id, client=api, format_=m.TrajectoryFormat.MAT)
+    assert isinstance(mat, types.File) and mat.payload.read()[:6] == b"MATLAB"
+    ros_file = export.sync(plan_id=plan.id, client=api, format_=m.TrajectoryFormat.ROS)
+    ros = m.RosJointTrajectory.from_dict(json.loads(ros_file.payload.read()))
+    assert len(ros.points) == 61 and ros.points[-1].time_from_start.sec == 15 and len(ros.joint_names) == 6
 
     # figures as bytes, typed: SVG and PNG
     figure = _op("figures", "get_plan_figure")
     svg = figure.sync(plan_id=plan.id, name=m.GetPlanFigureName.JOINT_ANGLES, client=api)
     png = figure.sync(plan_id=plan.id, name=m.GetPlanFigureName.JOINT_ANGLES, client=api, format_=m.FigureFormat.PNG)
+    pdf = figure.sync(plan_id=plan.id, name=m.GetPlanFigureName.JOINT_ANGLES, client=api, format_=m.FigureFormat.PDF, dpi=200)
+    assert isinstance(pdf, types.File) and pdf.payload.read()[:5] == b"%PDF-"
     assert isinstance(svg, types.File) and b"<svg" in svg.payload.read()[:1000]
     assert isinstance(png, types.File) and png.payload.read()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -138,13 +157,13 @@ def test_generated_python_client_runs_the_whole_flow(stack: Stack, spacearm_clie
         time.sleep(0.1)
         job = _op("tuning", "get_tuning_job").sync(job_id=job.id, client=api)
     assert job.status is m.JobStatus.SUCCEEDED, job
-    assert job.progress.phase is m.PhaseName.DONE
+    assert job.progress.phase is m.PhaseName.DONE and isinstance(job.worker_id, str)
     assert [(p.name, p.role, p.completed) for p in job.progress.phases] == [
         (m.TunableMethodName.ADAPTIVE, m.PhaseRole.TUNED, 2),
         (m.TunableMethodName.DLS, m.PhaseRole.DLS_BASELINE, 2),
     ]
     result = _op("tuning", "get_tuning_job_result").sync(job_id=job.id, client=api)
-    assert isinstance(result, m.TuningJobResult), result
+    assert isinstance(result, m.TuningJobResult) and result.status is m.ResultStatus.SUCCEEDED, result
     assert isinstance(result.best_params, m.MethodParams) and result.best_params.lambda_max > 0
     assert isinstance(result.best_params.nu, types.Unset)  # adaptive's parameters only
     assert result.best_objective_b > 0 and len(result.history) == 3
@@ -192,7 +211,7 @@ def test_typescript_client_type_checks_and_runs_the_whole_flow(stack: Stack) -> 
     )
     assert flow.returncode == 0, flow.stdout + flow.stderr
     out = json.loads(flow.stdout)
-    assert out["type_checks"] == 20
+    assert out["type_checks"] == 24
     assert out["robot_status"] == 201 and out["robot_location"] == f"/v1/robots/{out['robot_id']}"
     assert out["robot_links"] == 6 and out["task_dt_s"] == 0.25
     assert out["robot_joint_types"] == ["revolute"] * 6 and out["urdf_robot_joints"] == 6
@@ -201,6 +220,10 @@ def test_typescript_client_type_checks_and_runs_the_whole_flow(stack: Stack) -> 
     assert out["plan_success"] is True and out["attitude_term"] == "eq18" and 0 < out["max_joint_speed_deg_s"] <= 6.0
     assert out["has_trajectory"] is False and out["replay_success"] is True
     assert out["read_back_id"] == out["plan_id"] and "trajectory" not in out["read_back_keys"]
+    assert out["asked_method"] == "adaptive" and out["listed_has_plan"] is True
+    assert out["rerun_method"] == "dls" and out["rerun_asked_method"] == {"name": "dls", "params": {}}
+    assert out["csv_rows"] == 62 and out["ros_joints"] == 6 and out["ros_points"] == 61  # a header and 61 samples
+    assert out["job_worker"] and out["result_status"] == "succeeded"
     assert out["plan_svg"] == {"kind": "svg", "type": "image/svg+xml"}
     assert out["plan_png"] == {"kind": "png", "type": "image/png"}
     assert out["job_status"] == "succeeded" and out["job_location"] == out["job_links_self"] == f"/v1/tuning-jobs/{out['job_id']}"

@@ -6,6 +6,7 @@ import signal
 from collections.abc import Callable
 
 import httpx
+import pytest
 from sqlalchemy import text
 
 from service.infra.db import make_engine
@@ -15,7 +16,7 @@ from tests.service.conftest import PAPER_TASK, Stack, job_body, wait_for, wait_s
 LONG = job_body(population=20, generations=1000)
 
 
-def test_job_succeeds_with_result(client: httpx.Client) -> None:
+def test_job_succeeds_with_result(client: httpx.Client, stack: Stack) -> None:
     r = client.post("/v1/tuning-jobs", json=job_body(population=4, generations=2))
     assert r.status_code == 202, r.text
     job = r.json()
@@ -24,10 +25,14 @@ def test_job_succeeds_with_result(client: httpx.Client) -> None:
     done = wait_status(client, job["id"], ("succeeded", "failed"))
     assert done["status"] == "succeeded", done
     assert done["attempts"] == 1 and done["error"] is None
+    # the worker that ran it, by the id it logs when it starts polling
+    (worker,) = stack.workers
+    assert f"worker {done['worker_id']} polling" in worker.log.read_text()
     assert done["started_at"] and done["finished_at"]
     assert done["progress"]["generation"] == done["progress"]["generations"] == 4
     assert done["progress"]["best_objective_b"] > 0 and set(done["progress"]["best_params"]) == {"lambda_max", "epsilon"}
     result = client.get(f"/v1/tuning-jobs/{job['id']}/result").json()
+    assert result["status"] == "succeeded" and result["message"] == "every generation ran"
     assert set(result["best_params"]) == {"lambda_max", "epsilon"}
     assert result["best_objective_b"] == done["progress"]["best_objective_b"]
     assert [h["generation"] for h in result["history"]] == [0, 1, 2]
@@ -49,6 +54,32 @@ def test_job_without_dls_baseline(client: httpx.Client) -> None:
     assert wait_status(client, job["id"], ("succeeded", "failed"))["status"] == "succeeded"
     result = client.get(f"/v1/tuning-jobs/{job['id']}/result").json()
     assert result["dls_baseline"] is None and result["improvement_over_dls_percent"] is None
+
+
+def test_job_with_the_bounded_third_row(client: httpx.Client) -> None:
+    """With ``compare_with_bounded`` the job runs a third GA, on the bounded inverse, and its result
+    is the comparison's third row, checked against the phases' own histories."""
+    body = job_body(population=4, generations=1) | {"compare_with_bounded": True}
+    job = client.post("/v1/tuning-jobs", json=body).json()
+    done = wait_status(client, job["id"], ("succeeded", "failed"))
+    assert done["status"] == "succeeded", done
+    assert [(p["name"], p["role"]) for p in done["progress"]["phases"]] == [
+        ("adaptive", "tuned"),
+        ("dls", "dls_baseline"),
+        ("bounded", "bounded_baseline"),
+    ]
+    assert done["progress"]["generations"] == 3  # one generation in each of three GAs
+    result = client.get(f"/v1/tuning-jobs/{job['id']}/result").json()
+    bounded, dls = result["bounded_baseline"], result["dls_baseline"]
+    assert bounded["lambda"] > 0 and bounded["objective_b"] > 0
+    assert bounded["objective_b"] == done["progress"]["phases"][2]["history"][-1]["best"]
+    assert result["bounded_improvement_over_dls_percent"] == pytest.approx(
+        100.0 * (dls["objective_b"] - bounded["objective_b"]) / dls["objective_b"], rel=1e-12
+    )
+    # a job that tunes the bounded inverse itself has no third row
+    itself = client.post("/v1/tuning-jobs", json=body | {"method": "bounded", "bounds": None}).json()
+    assert wait_status(client, itself["id"], ("succeeded", "failed"))["status"] == "succeeded"
+    assert client.get(f"/v1/tuning-jobs/{itself['id']}/result").json()["bounded_baseline"] is None
 
 
 def test_job_fails_with_error(client: httpx.Client) -> None:
@@ -73,7 +104,18 @@ def test_cancel_running_and_queued(client: httpx.Client) -> None:
     cancelled = wait_status(client, long_job["id"], ("cancelled", "succeeded", "failed"), timeout=10)
     assert cancelled["status"] == "cancelled"
     assert cancelled["progress"]["generation"] < 1000
-    assert client.get(f"/v1/tuning-jobs/{long_job['id']}/result").status_code == 409
+    # it keeps the best found before the cancel: the progress's last best, with the history up to it
+    kept = client.get(f"/v1/tuning-jobs/{long_job['id']}/result")
+    assert kept.status_code == 200, kept.text
+    best = kept.json()
+    (tuned, baseline) = cancelled["progress"]["phases"]
+    assert best["status"] == "cancelled" and best["dls_baseline"] is None and baseline["completed"] == 0
+    assert best["message"].startswith(f"cancelled after generation {tuned['completed']} of 1000 of the adaptive GA")
+    assert [h["generation"] for h in best["history"]] == list(range(tuned["completed"] + 1)) and tuned["completed"] >= 2
+    assert best["best_objective_b"] == cancelled["progress"]["best_objective_b"] == min(h["best"] for h in tuned["history"])
+    assert best["best_params"] == cancelled["progress"]["best_params"]
+    (metrics,) = best["best_metrics"]
+    assert metrics["objective_b"] == pytest.approx(best["best_objective_b"], rel=1e-9)
     assert client.post("/v1/tuning-jobs/nope/cancel").status_code == 404
 
 

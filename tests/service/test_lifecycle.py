@@ -1,6 +1,6 @@
 """A job's life as a client sees it, over real HTTP and real processes: the Server-Sent Events
 stream (several API processes, resume, heartbeats, cancel), the per-phase progress, links,
-deletion, retention, and the paper's objective by default (the README's tuning example)."""
+deletion, retention (the README's quick start, with its tuning job: tests/service/test_quickstart.py)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from typing import Any
 
 import httpx
 
-from tests.service.conftest import PAPER_TASK, ROOT, Proc, Stack, free_port, job_body, wait_for, wait_status
+from tests.service.conftest import PAPER_TASK, Proc, Stack, free_port, job_body, wait_for, wait_status
 
 
 def sse(response: httpx.Response) -> Iterator[dict[str, Any]]:
@@ -184,32 +184,3 @@ def test_retention_deletes_old_finished_jobs_and_plans(make_stack: Callable[...,
     # the plan and the job may expire in different sweeps (on a loaded machine): count them all
     sweeps = re.findall(r"retention: deleted (\d+) plan\(s\) and (\d+) finished job\(s\)", (stack.dir / "api.log").read_text())
     assert (sum(int(p) for p, _ in sweeps), sum(int(j) for _, j in sweeps)) == (1, 1), sweeps
-
-
-def readme_tuning_body(client: httpx.Client) -> dict[str, Any]:
-    """The tuning job body of the README's example, as written there (``$TASK`` is the
-    ``paper-line`` preset's task, as the README fetches it)."""
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"curl -s -i -X POST localhost:8000/v1/tuning-jobs .*?-d \"(\{.*?\})\"\n", text, re.S)
-    assert block is not None, "the README's tuning example is gone"
-    task = client.get("/v1/task-presets/paper-line").json()["task"]
-    body: dict[str, Any] = json.loads(block.group(1).replace('\\"', '"').replace("$TASK", json.dumps(task)))
-    return body
-
-
-def test_the_readme_tuning_example_shows_the_papers_improvement(client: httpx.Client) -> None:
-    """The paper's objective (eq. 18 as printed) is the default: the README's example job, run
-    as written, has the tuned adaptive damping beat the tuned DLS by the paper's margin."""
-    body = readme_tuning_body(client)
-    job = client.post("/v1/tuning-jobs", json=body).json()
-    assert wait_status(client, job["id"], ("succeeded", "failed"), timeout=120)["status"] == "succeeded"
-    result = client.get(f"/v1/tuning-jobs/{job['id']}/result").json()
-    print(
-        f"\nREADME tuning example: adaptive B {result['best_objective_b']:.5f} {result['best_params']}, "
-        f"DLS B {result['dls_baseline']['objective_b']:.5f}, improvement {result['improvement_over_dls_percent']:.1f} %, "
-        f"warnings {result['warnings']}"
-    )
-    assert all(m["attitude_term"] == "eq18" for m in result["best_metrics"])
-    assert 20.0 < result["improvement_over_dls_percent"] < 40.0
-    plan = client.post("/v1/plans", params={"fields": ""}, json={"robot_id": "table1", "task": PAPER_TASK}).json()
-    assert plan["metrics"]["attitude_term"] == "eq18"

@@ -22,9 +22,10 @@ from service.openapi import reached_schemas, schema_refs
 #: Response fields that may really be absent, and why.
 OPTIONAL_IN_RESPONSES = {
     "PlanOut": {"trajectory", "replay"},  # sections chosen with `fields=`
-    "Trajectory": {"joint_displacements_m", "joint_velocities_m_s"},  # robots with prismatic joints only
+    # robots with prismatic joints only
+    "Trajectory": {"joint_displacements_m", "joint_velocities_m_s", "joint_accelerations_m_s2", "joint_forces_n"},
     "Health": {"kernels", "database", "revision", "head"},  # liveness has only `status`
-    "Problem": {"instance", "errors"},  # `errors` only on a 422
+    "Problem": {"instance", "errors", "available"},  # `errors` only on a 422, `available` on a 406
     "MethodParams": {p.name for spec in METHODS.values() for p in spec.params},  # the method's own only
     "MethodOut": {"secondary"},  # plans with a null-space objective only
 }
@@ -66,8 +67,9 @@ def test_every_operation_parameter_and_property_is_described(doc: dict[str, Any]
 def test_quantities_state_their_units(doc: dict[str, Any]) -> None:
     """Every number's name or description says its unit (or that it is a count or without unit)."""
     unit = re.compile(
-        r"_(m|s|deg|rad|kg|deg_s|m_s|m_s2|deg_s2|n_s|n_m_s|m_rad|percent)\b|\b(m|s|deg|rad|kg|1/s|N s|N m s|deg/s|m/s|"
-        r"rad/s|m rad|m\^3|kg m\^2|percent|dimensionless)\b|singular values|0 to 1|\bB\b|probability|generation|"
+        r"_(m|s|deg|rad|kg|deg_s|m_s|m_s2|deg_s2|n|n_m|n_s|n_m_s|m_rad|percent)\b|"
+        r"\b(m|s|deg|rad|kg|1/s|N|N m|N s|N m s|deg/s|m/s|rad/s|m rad|m\^3|kg m\^2|percent|dimensionless)\b|"
+        r"singular values|0 to 1|\bB\b|probability|generation|"
         r"individuals|plans|bits|steps|rounds|count|number of|times|claims|HTTP status|indices|durations planned|_quaternion|"
         r"_index|\bindex\b"
     )
@@ -85,7 +87,7 @@ def test_closed_vocabularies_are_named_enums_matching_the_engine(doc: dict[str, 
     assert set(_enum(doc, "AttitudeTermName")) == set(ATTITUDE_TERMS)
     assert set(_enum(doc, "TimeProfile")) == set(PROFILES)
     assert _enum(doc, "JobStatus") == ["queued", "running", "succeeded", "failed", "cancelled"]
-    assert _enum(doc, "PhaseRole") == ["tuned", "dls_baseline"]
+    assert _enum(doc, "PhaseRole") == ["tuned", "dls_baseline", "bounded_baseline"]
     assert set(_enum(doc, "ParamName")) == {p.name for spec in METHODS.values() for p in spec.params}
     schemas = doc["components"]["schemas"]
     assert {schemas[f"{t.capitalize()}PathIn"]["properties"]["type"]["const"] for t in PATH_TYPES} == set(PATH_TYPES)
@@ -150,7 +152,7 @@ def test_headers_images_and_event_stream_are_declared(doc: dict[str, Any]) -> No
     assert len(images) == 4
     for op in images:
         content = op["responses"]["200"]["content"]
-        assert set(content) == {"image/svg+xml", "image/png"}
+        assert set(content) == {"image/svg+xml", "image/png", "application/pdf"}
         assert all(media["schema"] == {"type": "string", "format": "binary"} for media in content.values())
         assert "ETag" in op["responses"]["200"]["headers"] and "304" in op["responses"]
     stream = ops["get_tuning_job_events"]["responses"]["200"]["content"]

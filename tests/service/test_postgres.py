@@ -28,13 +28,13 @@ def test_pg_upgrade_downgrade_roundtrip(pg_url: str) -> None:  # noqa: F811
     try:
         assert engine.dialect.name == "postgresql"
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == head_revision(pg_url) == "0004"
+        assert current_revision(engine) == head_revision(pg_url) == "0005"
         downgrade(pg_url)
         assert not TABLES & set(inspect(engine).get_table_names())
         assert current_revision(engine) is None
         upgrade(pg_url)
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == "0004"
+        assert current_revision(engine) == "0005"
     finally:
         engine.dispose()
 
@@ -44,13 +44,18 @@ def test_pg_api_and_two_workers(make_stack: Callable[..., Stack], pg_url: str) -
     stack.start_api()
     with stack.client() as client:
         ready = client.get("/readyz")
-        assert ready.status_code == 200 and ready.json()["revision"] == "0004", ready.text
+        assert ready.status_code == 200 and ready.json()["revision"] == "0005", ready.text
         r = client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK, "replay": False})
         assert r.status_code == 201, r.text
         plan = r.json()
         stored = client.get(f"/v1/plans/{plan['id']}").json()
         assert stored["metrics"] == plan["metrics"] and stored["success"] is plan["success"]
         assert plan["id"] in [p["id"] for p in client.get("/v1/plans").json()["items"]]
+        # the list's filters read the stored JSON (->> on PostgreSQL, json_extract on SQLite)
+        kept = {"robot_id": "table1", "path_type": "line", "method": "adaptive", "success": str(plan["success"]).lower()}
+        assert [p["id"] for p in client.get("/v1/plans", params=kept).json()["items"]] == [plan["id"]]
+        for other in ({"path_type": "raster"}, {"method": "dls"}, {"success": str(not plan["success"]).lower()}):
+            assert client.get("/v1/plans", params={**kept, **other}).json()["total"] == 0, other
         # PostgreSQL cannot store NUL characters (SQLite can): a 422, not a 500
         robot = client.get("/v1/robots/table1").json()["parameters"]
         nul = client.post("/v1/robots", json={**robot, "name": "a\x00b"})

@@ -269,7 +269,7 @@ def test_an_exhausted_connection_pool_is_a_503_then_recovers(tmp_path: Path) -> 
     url = f"sqlite:///{tmp_path / 'pool.db'}"
     upgrade(url, "head")
     app = create_app(Settings(database_url=url, db_pool_size=1, db_pool_timeout_s=0.2))
-    with TestClient(app) as client:
+    with TestClient(app, base_url="http://localhost") as client:  # an allowed Host
         wait_for(app.state.kernels.ready.is_set, timeout=300)  # its rehearsal of a plan uses the pool too
         assert client.get("/v1/robots").status_code == 200
         held = app.state.db.engine.connect()
@@ -410,7 +410,9 @@ def _fill(directory: Path) -> Path:
 
 
 def test_full_disk_is_a_503_and_writes_resume_when_space_is_freed(tmp_path: Path) -> None:
-    """The database on a 2 MiB tmpfs the test mounts; the rest of it filled with a file."""
+    """The database on a 2 MiB tmpfs the test mounts; the rest of it filled with a file. Deletions
+    still work on the full disk (issue 22: a DELETE answered 503 too, so space could not be freed
+    through the API): a plan is deleted, and a robot can be stored in its place."""
     if os.geteuid() != 0:
         pytest.skip("mounting a small tmpfs for the database needs root (CAP_SYS_ADMIN)")
     fs = tmp_path / "fs"
@@ -426,6 +428,8 @@ def test_full_disk_is_a_503_and_writes_resume_when_space_is_freed(tmp_path: Path
         with stack.client() as c:
             table1 = preset_robot(c)
             assert c.post("/v1/robots", json=named(table1, "room")).status_code == 201
+            plan = c.post("/v1/plans?fields=", json=SMALL_PLAN)
+            assert plan.status_code == 201, plan.text
             filler = _fill(fs)
             stored = 0
             for i in range(2000):
@@ -440,6 +444,11 @@ def test_full_disk_is_a_503_and_writes_resume_when_space_is_freed(tmp_path: Path
             assert ready.status_code == 503 and ready.json()["database"] == "the database's disk is full", ready.text
             assert c.get("/v1/robots", params={"limit": 1}).status_code == 200  # reads still work
             assert c.get("/healthz").status_code == 200
+            deleted = c.delete(f"/v1/plans/{plan.json()['id']}")
+            assert deleted.status_code == 204, deleted.text  # the disk reserve makes room for deletions
+            after_delete = c.post("/v1/robots", json=named(table1, "in the deleted plan's place"))
+            print(f"a deletion on the full disk: {deleted.status_code}; a robot stored after it: {after_delete.status_code}")
+            assert after_delete.status_code == 201, after_delete.text
 
             filler.unlink()  # the fault ends; the API is not restarted
             after = c.post("/v1/robots", json=named(table1, "after freeing space"))

@@ -19,7 +19,7 @@ from service.infra.settings import Settings
 def _app(tmp_path: Path) -> TestClient:
     url = f"sqlite:///{tmp_path / 'startup.db'}"
     upgrade(url, "head")
-    return TestClient(create_app(Settings(database_url=url)))
+    return TestClient(create_app(Settings(database_url=url)), base_url="http://localhost")  # an allowed Host
 
 
 def test_ready_only_once_the_kernels_are_loaded(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

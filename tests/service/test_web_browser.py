@@ -24,7 +24,7 @@ from typing import Any
 
 import pytest
 
-from tests.service.conftest import ROOT, Stack
+from tests.service.conftest import PAPER_TASK, ROOT, Stack
 
 SETUP = ROOT / "tests" / "browser" / "setup.sh"
 SCREENS = Path(os.environ.get("SPACEARM_SCREENSHOTS", "/tmp/spacearm-screens"))
@@ -40,6 +40,7 @@ CHROMIUM_FLAGS = [
     "--disable-sync",
     "--disable-extensions",
     "--window-size=1400,1000",
+    "--enable-unsafe-swiftshader",  # WebGL in software (the 3D view), without a GPU
     # offline: no name resolves but the test stack's address
     "--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE 127.0.0.1",
 ]
@@ -140,6 +141,8 @@ def test_submit_paper_task_and_see_plan_figures(driver: Any, stack: Stack) -> No
         "tracking-errors",
         "base-motion",
         "damping",
+        "joint-torques",
+        "carrier-wrench",
         "scene-3d",
     ]
     wait_until(driver, lambda d: d.execute_script(ALL_IMAGES_LOADED, "#figures img"))
@@ -151,15 +154,18 @@ def test_submit_paper_task_and_see_plan_figures(driver: Any, stack: Stack) -> No
         stored = c.get(f"/v1/plans/{plan_id}").json()
     assert stored["method"] == {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}}
 
-    # a bad parameter comes back to the form with the API's field path
+    # a bad parameter comes back next to its field, in the form's words, once
     driver.get(stack.url + "/")
     Select(driver.find_element(By.ID, "method")).select_by_value("dls")
     field = driver.find_element(By.NAME, "dls.lambda")
     field.clear()
     field.send_keys("-1")
     driver.find_element(By.ID, "plan-submit").click()
-    wait_until(driver, lambda d: d.find_elements(By.ID, "form-error"))
-    assert "lambda" in driver.find_element(By.ID, "form-error").text
+    wait_until(driver, lambda d: d.find_elements(By.CSS_SELECTOR, ".field-error"))
+    (error,) = driver.find_elements(By.CSS_SELECTOR, ".field-error")
+    assert error.get_attribute("data-field") == "dls.lambda" and error.text == "must be greater than or equal to 0"
+    assert error.is_displayed() and error.find_element(By.XPATH, "..").find_element(By.NAME, "dls.lambda")  # beside it
+    assert not driver.find_elements(By.ID, "form-error") and "body." not in driver.find_element(By.TAG_NAME, "body").text
     assert Select(driver.find_element(By.ID, "method")).first_selected_option.get_attribute("value") == "dls"
     assert driver.find_element(By.NAME, "dls.lambda").get_attribute("value") == "-1"  # the form keeps what was typed
     screenshot(driver, "03-form-error")
@@ -243,3 +249,116 @@ def test_api_docs_render_every_operation_offline(driver: Any, stack: Stack) -> N
         assert [r for r in resources if not r.startswith(stack.url + "/") and r != logo] == []
         errors = [e for e in console_errors(driver) if logo is None or logo not in e]
         assert errors == [], errors
+
+
+def element_text(drv: Any, element_id: str) -> str:
+    """The text of an element, or "" (safe while the page changes under the test)."""
+    text: str = drv.execute_script("const e = document.getElementById(arguments[0]); return e ? e.textContent : ''", element_id)
+    return text
+
+
+def canvas_pixels(element: Any) -> Any:
+    """The element's pixels as an ``(h, w, 3)`` array (a screenshot of it)."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(element.screenshot_as_png)).convert("RGB")).astype(int)
+
+
+def test_3d_view_plays_the_motion(driver: Any, stack: Stack) -> None:
+    """The 3D view of a plan (three.js, bundled and served by this server, under the pages' CSP):
+    the canvas renders the scene, nothing is logged as an error, the time slider moves the arm
+    (the image changes and the end effector moves), Play advances the time, and the page
+    fetched only this server."""
+    import numpy as np
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    with stack.client() as c:
+        body = {"robot_id": "table1", "task": {**PAPER_TASK, "dt_s": 0.5}, "method": {"name": "adaptive"}}
+        plan_id = c.post("/v1/plans", params={"fields": ""}, json=body).json()["id"]
+    console_errors(driver)
+    driver.get(f"{stack.url}/plans/{plan_id}/view")
+    wait_until(driver, lambda d: d.execute_script("return document.body.dataset.viewReady"), timeout=60)
+    assert driver.execute_script("return document.body.dataset.viewReady") == "1", driver.find_element(By.ID, "view-status").text
+    canvas = driver.find_element(By.ID, "scene")
+    time.sleep(0.5)  # a few animation frames
+    first = canvas_pixels(canvas)
+    background = np.array([0x0D, 0x1B, 0x2A])
+    drawn = np.any(np.abs(first - background) > 12, axis=2)
+    print(f"\n3D view: {drawn.mean():.1%} of the canvas drawn ({first.shape[1]} x {first.shape[0]} px)")
+    assert 0.02 < drawn.mean() < 0.95  # the scene, not a blank (or failed) canvas
+    assert len(np.unique(first.reshape(-1, 3), axis=0)) > 50  # shaded meshes, not one flat colour
+    screenshot(driver, "07-view3d-start")
+
+    tip0 = driver.execute_script("return window.spacearmView.tip()")
+    slider = driver.find_element(By.ID, "time")
+    frames = int(driver.execute_script("return window.spacearmView.frames"))
+    slider.click()  # the middle of the track
+    slider.send_keys(Keys.END)  # then the last frame, as a user would with the keyboard
+    wait_until(driver, lambda d: d.execute_script("return window.spacearmView.frame") == frames - 1)
+    assert driver.find_element(By.ID, "time-label").text.startswith("t = 15.00 s")
+    time.sleep(0.3)
+    last = canvas_pixels(canvas)
+    changed = np.any(np.abs(last - first) > 24, axis=2).mean()
+    tip1 = driver.execute_script("return window.spacearmView.tip()")
+    print(
+        f"3D view: the slider changed {changed:.1%} of the canvas; the tip moved {np.linalg.norm(np.subtract(tip1, tip0)):.3f} m"
+    )
+    assert changed > 0.002  # the arm moved on screen
+    with stack.client() as c:
+        ee = c.get(f"/v1/plans/{plan_id}", params={"fields": "trajectory"}).json()["trajectory"]["ee_position_m"]
+    np.testing.assert_allclose(tip0, ee[0], atol=1e-4)
+    np.testing.assert_allclose(tip1, ee[-1], atol=1e-4)
+    screenshot(driver, "08-view3d-end")
+
+    slider.send_keys(Keys.HOME)
+    driver.find_element(By.ID, "play").click()
+    wait_until(driver, lambda d: d.execute_script("return window.spacearmView.frame") > 2, timeout=20)
+    assert driver.find_element(By.ID, "play").text == "Pause"
+    driver.find_element(By.ID, "play").click()
+
+    resources = driver.execute_script("return performance.getEntriesByType('resource').map(e => e.name)")
+    assert [r for r in resources if not r.startswith(stack.url + "/")] == []
+    assert any("/static/three-" in r for r in resources) and any(r.endswith("/scene.json") for r in resources)
+    errors = console_errors(driver)
+    assert errors == [], errors
+
+
+def test_compare_page_and_robot_upload(driver: Any, stack: Stack, tmp_path: Path) -> None:
+    """Two plans compared (any figure, here the paper's Fig. 9), and a robot uploaded from a
+    file and deleted again, through the page."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    from engine.model import urdf_preset_text
+
+    with stack.client() as c:
+        ids = [
+            c.post("/v1/plans", params={"fields": ""}, json={"robot_id": "table1", "task": PAPER_TASK, "method": m}).json()["id"]
+            for m in ({"name": "dls", "params": {"lambda": 0.05}}, {"name": "adaptive"})
+        ]
+    driver.get(f"{stack.url}/plans/compare?a={ids[0]}&b={ids[1]}")
+    Select(driver.find_element(By.ID, "compare-figure")).select_by_value("joint-velocities")
+    driver.find_element(By.ID, "compare-submit").click()
+    wait_until(driver, lambda d: d.execute_script(ALL_IMAGES_LOADED, "#compare-image"))
+    assert "figures/joint-velocities?ids=" in driver.find_element(By.ID, "compare-image").get_attribute("src")
+    screenshot(driver, "09-compare")
+
+    urdf = tmp_path / "arm7.urdf"
+    urdf.write_text(urdf_preset_text("arm7"))
+    driver.get(stack.url + "/")
+    form = driver.find_element(By.ID, "robot-form")
+    form.find_element(By.NAME, "file").send_keys(str(urdf))
+    form.find_element(By.NAME, "end_effector_link").send_keys("tool0")
+    form.find_element(By.NAME, "name").send_keys("uploaded arm")
+    driver.find_element(By.ID, "robot-submit").click()
+    wait_until(driver, lambda d: "uploaded arm" in element_text(d, "robots"))
+    assert "uploaded arm" in [o.text for o in Select(driver.find_element(By.ID, "robot")).options]
+    row = driver.find_element(By.XPATH, "//section[@id='robots']//tr[td[contains(., 'uploaded arm')]]")
+    screenshot(driver, "10-robot-uploaded")
+    row.find_element(By.CSS_SELECTOR, "button[data-delete]").click()
+    driver.switch_to.alert.accept()  # the page asks first
+    wait_until(driver, lambda d: "/#robots" in d.current_url and "uploaded arm" not in element_text(d, "robots"))

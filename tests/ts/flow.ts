@@ -29,16 +29,23 @@ const typeChecks: [
     Equal<Schemas["RobotOut"]["parameters"], Schemas["RobotParams"]>,
     IsRequired<Schemas["RobotOut"], "joints">,
     Equal<Schemas["JointOut"]["type"], "revolute" | "prismatic">,
-    Equal<Schemas["MethodName"], "inverse" | "dls" | "adaptive" | "wdls" | "sdls" | "svf">,
+    Equal<Schemas["MethodName"], "inverse" | "dls" | "adaptive" | "wdls" | "sdls" | "svf" | "bounded">,
     Equal<Schemas["JobStatus"], "queued" | "running" | "succeeded" | "failed" | "cancelled">,
     Equal<Schemas["AggregationName"], "max" | "rms" | "final">,
     Equal<Schemas["AttitudeTermName"], "angle" | "eq18">,
     Equal<Schemas["TimeProfile"], "trapezoidal" | "quintic">,
-    Equal<Schemas["PhaseRole"], "tuned" | "dls_baseline">,
+    Equal<Schemas["PhaseRole"], "tuned" | "dls_baseline" | "bounded_baseline">,
     Equal<Schemas["MethodOut"]["params"]["lambda_max"], number | undefined>,
     // a request's defaulted field may be left out
     Equal<IsRequired<Schemas["TaskIn"], "dt_s">, false>,
-] = [true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true, true];
+    IsRequired<Schemas["PlanOut"], "request">,
+    IsRequired<Schemas["TuningJobOut"], "worker_id">,
+    Equal<Schemas["TrajectoryFormat"], "json" | "csv" | "mat" | "npz" | "ros">,
+    Equal<Schemas["ResultStatus"], "succeeded" | "cancelled">,
+] = [
+    true, true, true, true, true, true, true, true, true, true, true, true,
+    true, true, true, true, true, true, true, true, true, true, true, true,
+];
 
 const FINISHED: ReadonlySet<Schemas["JobStatus"]> = new Set(["succeeded", "failed", "cancelled"]);
 
@@ -86,6 +93,26 @@ async function main(baseUrl: string): Promise<void> {
 
     const read = await client.GET("/v1/plans/{plan_id}", { params: { path: { plan_id: plan.id }, query: { fields: "" } } });
     if (read.error !== undefined) fail("get_plan", read.error);
+    // what it was asked, the list filtered by method, the plan again with changes (a merge patch)
+    const asked: Schemas["PlanRequest"] | null = read.data.request;
+    const listed = await client.GET("/v1/plans", { params: { query: { method: "adaptive", path_type: "line", success: true } } });
+    if (listed.error !== undefined) fail("list_plans", listed.error);
+    const rerunBody: Schemas["PlanRerun"] = { from_plan_id: plan.id, method: { name: "dls" }, replay: false };
+    const rerun = await client.POST("/v1/plans", { body: rerunBody, params: { query: { fields: "" } } });
+    if (rerun.error !== undefined) fail("create_plan (from_plan_id)", rerun.error);
+    // the trajectory as CSV (text) and as a ROS JointTrajectory (typed JSON)
+    const csv = await client.GET("/v1/plans/{plan_id}/trajectory", {
+        params: { path: { plan_id: plan.id }, query: { format: "csv" } },
+        parseAs: "text",
+    });
+    if (csv.error !== undefined) fail("get_plan_trajectory (csv)", csv.error);
+    const ros = await client.GET("/v1/plans/{plan_id}/trajectory", {
+        params: { path: { plan_id: plan.id }, query: { format: "ros" } },
+        headers: { Accept: "application/vnd.spacearm.ros-joint-trajectory+json" },
+        parseAs: "json",
+    });
+    if (ros.error !== undefined) fail("get_plan_trajectory (ros)", ros.error);
+    const rosTrajectory = ros.data as Schemas["RosJointTrajectory"];
 
     const svg = await client.GET("/v1/plans/{plan_id}/figures/{name}", {
         params: { path: { plan_id: plan.id, name: "joint-angles" }, query: { format: "svg" } },
@@ -120,6 +147,7 @@ async function main(baseUrl: string): Promise<void> {
     const result = await client.GET("/v1/tuning-jobs/{job_id}/result", { params: { path: { job_id: job.id } } });
     if (result.error !== undefined) fail("get_tuning_job_result", result.error);
     const tuned: Schemas["TuningJobResult"] = result.data;
+    const resultStatus: Schemas["ResultStatus"] = tuned.status;
     const events = await client.GET("/v1/tuning-jobs/{job_id}/events", {
         params: { path: { job_id: job.id } },
         parseAs: "text",
@@ -158,6 +186,15 @@ async function main(baseUrl: string): Promise<void> {
         max_joint_speed_deg_s: plan.metrics.max_joint_speed_deg_s,
         has_trajectory: plan.trajectory !== undefined,
         replay_success: plan.replay?.success ?? null,
+        asked_method: asked?.method?.name ?? null,
+        listed_has_plan: listed.data.items.some((p) => p.id === plan.id),
+        rerun_method: rerun.data.method.name,
+        rerun_asked_method: rerun.data.request?.method ?? null,
+        csv_rows: csv.data.trim().split("\n").length,
+        ros_joints: rosTrajectory.joint_names.length,
+        ros_points: rosTrajectory.points.length,
+        job_worker: job.worker_id,
+        result_status: resultStatus,
         read_back_id: read.data.id,
         read_back_keys: Object.keys(read.data).sort(),
         plan_svg: { kind: await figureKind(svg.data), type: svg.response.headers.get("Content-Type") },

@@ -5,16 +5,7 @@
 # lockfile changes (its hash is stamped into node_modules). Needs root (or sudo) for apt-get.
 set -eu
 HERE=$(cd "$(dirname "$0")" && pwd)
-if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
-    SUDO=""
-    if [ "$(id -u)" != "0" ]; then
-        if command -v sudo >/dev/null 2>&1; then SUDO="sudo -n"; else echo "setup.sh: need root to apt-get install nodejs npm" >&2; exit 1; fi
-    fi
-    export DEBIAN_FRONTEND=noninteractive
-    $SUDO apt-get update -qq
-    $SUDO apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null
-fi
-command -v node >/dev/null && command -v npm >/dev/null
+sh "$HERE/../../web/node.sh"  # node and npm via apt-get when missing
 STAMP="$HERE/node_modules/.spacearm-lock"
 WANT=$(sha256sum "$HERE/package-lock.json" | cut -d' ' -f1)
 if [ "$(cat "$STAMP" 2>/dev/null || true)" != "$WANT" ]; then

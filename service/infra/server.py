@@ -1,0 +1,224 @@
+"""The HTTP server (uvicorn, its h11 protocol) with the guards uvicorn has no setting for: slow
+clients are cut off, open connections are capped, and running out of file descriptors is logged
+once instead of once a second with a traceback.
+
+- **Header timeout.** A request's line and headers must arrive within ``header_timeout_s`` of the
+  connection's start (or of the first byte of a later request on a kept-alive connection; the
+  silence between requests is uvicorn's keep-alive timeout). Then a 408 and the connection closes.
+- **Body timeout.** A body must arrive within ``body_timeout_s``, plus a second for every
+  ``body_min_rate`` bytes received (Apache's ``mod_reqtimeout`` rule: a large body sent at a
+  decent rate is never cut, a trickle is). Then a 408 (if no response has started) and the
+  connection closes; the handler waiting for the body sees the client gone.
+- **Connection cap.** At most ``max_connections`` connections are open; a new one beyond gets a
+  503 with ``Retry-After`` and is closed at once (a refusal costs a file descriptor for a moment
+  only). By default the cap is 1000, or less when the process's file-descriptor limit
+  (``ulimit -n``) is lower: the limit less a reserve for the database connections, the
+  process's own files and the connections a burst brings in before they are refused (asyncio
+  accepts up to :data:`BACKLOG` at a time), so the accept loop does not run out of descriptors.
+- **Out of descriptors.** When accepting fails for want of descriptors anyway, asyncio reports it
+  to the event loop's exception handler with a traceback for every connection waiting, and pauses
+  accepting for a second; here it is one warning a minute (with the count of the others).
+
+A front proxy (nginx's ``client_header_timeout``, ``client_body_timeout``, ``limit_conn``) may do
+the same in front of the API; these guards hold without one.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import resource
+import time
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import h11
+import uvicorn
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+from service.infra.settings import Settings
+
+log = logging.getLogger("spacearm.api")
+
+DEFAULT_MAX_CONNECTIONS = 1000
+#: File descriptors kept for the process itself (logs, libraries), besides the database's.
+RESERVED_FDS = 64
+#: The listening socket's backlog, which is also how many connections asyncio accepts at a time.
+BACKLOG = 128
+REFUSED = b"HTTP/1.1 503 Service Unavailable\r\nretry-after: 1\r\nconnection: close\r\ncontent-length: 0\r\n\r\n"
+TIMED_OUT = b"HTTP/1.1 408 Request Timeout\r\nconnection: close\r\ncontent-length: 0\r\n\r\n"
+ACCEPT_EXHAUSTED = "socket.accept() out of system resource"
+
+
+@dataclass(frozen=True)
+class Guards:
+    """The limits of :class:`GuardedH11Protocol`."""
+
+    max_connections: int
+    header_timeout_s: float
+    body_timeout_s: float
+    body_min_rate: float
+
+
+def fd_limit() -> int:
+    """The soft limit of open file descriptors of this process."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    return soft if soft != resource.RLIM_INFINITY else 1 << 20
+
+
+def guards_of(settings: Settings) -> Guards:
+    """The guards of ``settings``; the default connection cap fits the file-descriptor limit (each
+    SQLite connection of the pools holds up to three: the database, its WAL and shared memory; a
+    burst may bring in two backlogs' worth before they are refused)."""
+    reserve = RESERVED_FDS + 3 * (settings.pool_size() + 2) + 2 * BACKLOG
+    fits = max(16, fd_limit() - reserve)
+    cap = settings.max_connections or min(DEFAULT_MAX_CONNECTIONS, fits)
+    if cap > fits:
+        log.warning(
+            "SPACEARM_MAX_CONNECTIONS=%d is above what the file-descriptor limit (%d) leaves for connections (%d): "
+            "the API may run out of descriptors",
+            cap,
+            fd_limit(),
+            fits,
+        )
+    return Guards(cap, settings.header_timeout_s, settings.body_timeout_s, float(settings.body_min_rate))
+
+
+class _Throttled:
+    """Logs a warning at most once per ``every_s`` (with the count of the events in between)."""
+
+    def __init__(self, every_s: float) -> None:
+        self.every_s = every_s
+        self.last = -float("inf")
+        self.suppressed = 0
+
+    def warn(self, message: str, *args: Any) -> None:
+        now = time.monotonic()
+        if now - self.last < self.every_s:
+            self.suppressed += 1
+            return
+        more = f" ({self.suppressed} more since the last warning)" if self.suppressed else ""
+        log.warning(message + more, *args)
+        self.last, self.suppressed = now, 0
+
+
+REFUSALS = _Throttled(60.0)
+
+
+class GuardedH11Protocol(H11Protocol):
+    """uvicorn's h11 protocol with the header and body timeouts and the connection cap of
+    :attr:`guards` (a subclass per server sets it: :func:`protocol_for`)."""
+
+    guards: ClassVar[Guards]
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._phase: str | None = None  # "headers", "body", or None (nothing awaited from the client)
+        self._deadline = 0.0
+        self._body_start = 0.0
+        self._body_bytes = 0
+        self._timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        if len(self.server_state.connections) >= self.guards.max_connections:
+            self.transport = transport  # for connection_lost
+            transport.write(REFUSED)
+            transport.close()
+            REFUSALS.warn("refused connections: %d are open (SPACEARM_MAX_CONNECTIONS)", self.guards.max_connections)
+            return
+        super().connection_made(transport)
+        self._start("headers", self.guards.header_timeout_s)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._cancel()
+        super().connection_lost(exc)
+
+    def data_received(self, data: bytes) -> None:
+        super().data_received(data)
+        state = self.conn.their_state
+        if state is h11.SEND_BODY:
+            if self._phase != "body":
+                self._start("body", self.guards.body_timeout_s)
+                self._body_start, self._body_bytes = time.monotonic(), 0
+            self._body_bytes += len(data)
+        elif state is h11.IDLE:
+            if self._phase != "headers" and data:
+                self._start("headers", self.guards.header_timeout_s)  # the first bytes of a later request
+        else:
+            self._cancel()  # the request is complete: the rest is the handler's
+
+    def _start(self, phase: str, timeout_s: float) -> None:
+        self._cancel()
+        self._phase = phase
+        self._deadline = time.monotonic() + timeout_s
+        self._timer = self.loop.call_later(timeout_s, self._expire)
+
+    def _cancel(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = None
+        self._phase = None
+
+    def _expire(self) -> None:
+        self._timer = None
+        if self._phase == "body":  # a second more for every body_min_rate bytes received
+            deadline = self._deadline + self._body_bytes / self.guards.body_min_rate
+            if time.monotonic() < deadline:
+                self._timer = self.loop.call_later(deadline - time.monotonic(), self._expire)
+                return
+        if self._phase is None or self.transport is None or self.transport.is_closing():
+            return
+        answering = self.cycle is not None and not self.cycle.response_complete
+        if not (answering and self.cycle.response_started):
+            self.transport.write(TIMED_OUT)
+        self._phase = None
+        self.transport.close()
+
+
+def protocol_for(settings: Settings) -> type[GuardedH11Protocol]:
+    """A :class:`GuardedH11Protocol` with the guards of ``settings``."""
+    return type("GuardedH11Protocol", (GuardedH11Protocol,), {"guards": guards_of(settings)})
+
+
+OUT_OF_DESCRIPTORS = _Throttled(60.0)
+
+
+def _exception_handler(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+    if context.get("message") == ACCEPT_EXHAUSTED:
+        OUT_OF_DESCRIPTORS.warn(
+            "cannot accept connections: %s (raise the file-descriptor limit, ulimit -n, or lower "
+            "SPACEARM_MAX_CONNECTIONS); accepting again in a second",
+            context.get("exception") or "out of file descriptors",
+        )
+        return
+    loop.default_exception_handler(context)
+
+
+class GuardedServer(uvicorn.Server):
+    """uvicorn's server with :func:`_exception_handler` on its event loop."""
+
+    async def startup(self, sockets: Any = None) -> None:
+        asyncio.get_running_loop().set_exception_handler(_exception_handler)
+        await super().startup(sockets=sockets)
+
+
+def serve(app: Any, settings: Settings, log_level: str, log_config: dict[str, Any] | None) -> None:
+    """Run ``app`` on ``settings.host:settings.port`` until stopped (SIGTERM, Ctrl-C)."""
+    protocol = protocol_for(settings)
+    log.info(
+        "HTTP guards: at most %d connections, headers within %g s, bodies within %g s + 1 s per %d bytes",
+        protocol.guards.max_connections,
+        settings.header_timeout_s,
+        settings.body_timeout_s,
+        settings.body_min_rate,
+    )
+    config = uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        http=protocol,
+        backlog=BACKLOG,
+        log_level=log_level,
+        log_config=log_config,
+    )
+    GuardedServer(config).run()
