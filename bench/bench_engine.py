@@ -91,7 +91,6 @@ RSS_SCRIPT = textwrap.dedent(
     import engine
     from engine import CartesianTask, tune
     from engine.kinematics import as_state, forward_kinematics
-from engine.model import RobotModel
     from robots import random_robot
     import service.usecases.tuning_run  # the worker's imports
     from engine.tuning import Termination

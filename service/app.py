@@ -112,7 +112,7 @@ class Kernels:
         keys = self.settings.keys()
         headers = {"authorization": f"Bearer {keys[0]}"} if keys else {}
         transport = httpx.ASGITransport(app=self.app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://localhost", headers=headers) as client:
+        async with httpx.AsyncClient(transport=transport, base_url=f"http://{self.settings.internal_host()}", headers=headers) as client:
             for path in WARM_UP_PATHS:
                 await client.get(path)
 

@@ -140,6 +140,15 @@ class Settings(BaseSettings):
         bound = f"[{host}]" if ":" in host and not host.startswith("[") else host
         return local if bound in local else [bound, *local]
 
+    def internal_host(self) -> str:
+        """A Host header the API answers, for its own in-process requests (the start-up rehearsal)."""
+        hosts = self.allowed_host_list()
+        concrete = [h for h in hosts if "*" not in h]
+        if concrete:
+            return concrete[0]
+        patterns = [h for h in hosts if h != "*"]
+        return patterns[0].replace("*", "internal", 1) if patterns else "localhost"
+
     def cors_origin_list(self) -> list[str]:
         """The origins CORS allows (empty: CORS is off); without a trailing slash, as browsers send them."""
         return [o.strip().rstrip("/") for o in self.cors_origins.split(",") if o.strip()]

@@ -209,7 +209,9 @@ async def _forward(request: Request, method: str, path: str, body: dict[str, Any
     # request carries this process's internal token, which never leaves it.
     headers["authorization"] = f"Bearer {request.app.state.internal_token}"
     transport = httpx.ASGITransport(app=request.app)
-    async with httpx.AsyncClient(transport=transport, base_url="http://localhost", timeout=600) as client:
+    # The page's own Host passed the allowlist, so the in-process request carries it too.
+    base_url = f"http://{request.headers.get('host') or request.app.state.settings.internal_host()}"
+    async with httpx.AsyncClient(transport=transport, base_url=base_url, timeout=600) as client:
         return await client.request(method, path, json=body, headers=headers)
 
 

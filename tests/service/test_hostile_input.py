@@ -231,6 +231,23 @@ def test_allowed_hosts_are_configurable(make_stack: Callable[..., Stack]) -> Non
     with stack.client() as client:
         for host, status in (("api.example", 200), ("x.lab.example", 200), ("localhost", 400), ("other.example", 400)):
             assert client.get("/v1/task-presets", headers={"host": host}).status_code == status, host
+    # The web page's forms reach the API in process under the page's own Host (not "localhost",
+    # which this list refuses), and so does the start-up rehearsal.
+    with httpx.Client(base_url=stack.url, headers={"host": "api.example"}, timeout=60) as web:
+        index = web.get("/")
+        token = re.search(r'name="csrf_token" value="([^"]+)"', index.text)
+        assert index.status_code == 200 and token is not None
+        form = {"csrf_token": token[1], "preset": "paper-line", "robot_id": "table1", "method": "dls"}
+        submitted = web.post("/web/plans", data=form, headers={"origin": "http://api.example"}, follow_redirects=False)
+        assert submitted.status_code == 303, submitted.text
+        plan_id = submitted.headers["location"].rsplit("/", 1)[-1]
+        deleted = web.post(
+            f"/web/plans/{plan_id}/delete", data={"csrf_token": token[1]}, headers={"origin": "http://api.example"}
+        )
+        assert deleted.status_code in (200, 303), deleted.text
+        assert web.get(f"/v1/plans/{plan_id}").status_code == 404
+    log = (stack.dir / "api.log").read_text()
+    assert " 400 " not in log and "rehearsal skipped" not in log, log
 
 
 # --- 6. /login, 2. pages and /metrics with keys
