@@ -112,9 +112,13 @@ class Kernels:
         keys = self.settings.keys()
         headers = {"authorization": f"Bearer {keys[0]}"} if keys else {}
         transport = httpx.ASGITransport(app=self.app)
-        async with httpx.AsyncClient(transport=transport, base_url=f"http://{self.settings.internal_host()}", headers=headers) as client:
+        async with httpx.AsyncClient(
+            transport=transport, base_url=f"http://{self.settings.internal_host()}", headers=headers
+        ) as client:
             for path in WARM_UP_PATHS:
-                await client.get(path)
+                response = await client.get(path)
+                if response.status_code not in (200, 404):  # not prepared: the first real request pays
+                    log.warning("start-up rehearsal: GET %s answered %d", path, response.status_code)
 
     @property
     def state(self) -> str:

@@ -247,7 +247,7 @@ def test_allowed_hosts_are_configurable(make_stack: Callable[..., Stack]) -> Non
         assert deleted.status_code in (200, 303), deleted.text
         assert web.get(f"/v1/plans/{plan_id}").status_code == 404
     log = (stack.dir / "api.log").read_text()
-    assert " 400 " not in log and "rehearsal skipped" not in log, log
+    assert "rehearsal" not in log, log  # its in-process requests were answered too
 
 
 # --- 6. /login, 2. pages and /metrics with keys
