@@ -127,28 +127,6 @@ def test_migrate_killed_at_random_moments_never_leaves_a_broken_database(tmp_pat
     """30 kills: mostly in the window where the DDL runs (just after the file appears), some at
     any moment of the process. Each time, the next migrate succeeds and the schema is exactly
     the clean one."""
-
-
-def test_0005_keeps_the_worker_of_a_running_job_and_drops_the_column_on_downgrade(tmp_path: Path) -> None:
-    url = f"sqlite:///{tmp_path / 'workers.db'}"
-    upgrade(url, "0004")
-    with sqlite3.connect(tmp_path / "workers.db") as con:
-        for job_id, status, owner in (("r", "running", "host:1:ab"), ("q", "queued", None)):
-            con.execute(
-                "INSERT INTO tuning_jobs (id, status, request, attempts, max_attempts, cancel_requested, lease_owner, "
-                "created_at, updated_at) VALUES (?, ?, '{}', 1, 3, 0, ?, '2026-01-01', '2026-01-01')",
-                (job_id, status, owner),
-            )
-        con.execute("INSERT INTO tuning_job_generations VALUES ('r', 1, 1, 'adaptive', 'tuned', 0, 0.1, 0.2, 3, '2026-01-01')")
-    upgrade(url)
-    with sqlite3.connect(tmp_path / "workers.db") as con:
-        assert dict(con.execute("SELECT id, worker_id FROM tuning_jobs").fetchall()) == {"r": "host:1:ab", "q": None}
-    downgrade(url, "0004")
-    with sqlite3.connect(tmp_path / "workers.db") as con:
-        assert "worker_id" not in {row[1] for row in con.execute("PRAGMA table_info(tuning_jobs)")}
-        assert con.execute("SELECT count(*) FROM tuning_jobs").fetchone() == (2,)
-        # the column is dropped in place: a copy of the table would cascade-delete the generation rows
-        assert con.execute("SELECT count(*) FROM tuning_job_generations").fetchone() == (1,)
     clean = tmp_path / "clean.db"
     upgrade(f"sqlite:///{clean}")
     expected = _schema(clean)
@@ -182,6 +160,28 @@ def test_0005_keeps_the_worker_of_a_running_job_and_drops_the_column_on_downgrad
         with sqlite3.connect(path) as con:
             assert con.execute("SELECT version_num FROM alembic_version").fetchall() == [("0005",)]
     assert outcomes["killed during or after the DDL"] >= 15, outcomes
+
+
+def test_0005_keeps_the_worker_of_a_running_job_and_drops_the_column_on_downgrade(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'workers.db'}"
+    upgrade(url, "0004")
+    with sqlite3.connect(tmp_path / "workers.db") as con:
+        for job_id, status, owner in (("r", "running", "host:1:ab"), ("q", "queued", None)):
+            con.execute(
+                "INSERT INTO tuning_jobs (id, status, request, attempts, max_attempts, cancel_requested, lease_owner, "
+                "created_at, updated_at) VALUES (?, ?, '{}', 1, 3, 0, ?, '2026-01-01', '2026-01-01')",
+                (job_id, status, owner),
+            )
+        con.execute("INSERT INTO tuning_job_generations VALUES ('r', 1, 1, 'adaptive', 'tuned', 0, 0.1, 0.2, 3, '2026-01-01')")
+    upgrade(url)
+    with sqlite3.connect(tmp_path / "workers.db") as con:
+        assert dict(con.execute("SELECT id, worker_id FROM tuning_jobs").fetchall()) == {"r": "host:1:ab", "q": None}
+    downgrade(url, "0004")
+    with sqlite3.connect(tmp_path / "workers.db") as con:
+        assert "worker_id" not in {row[1] for row in con.execute("PRAGMA table_info(tuning_jobs)")}
+        assert con.execute("SELECT count(*) FROM tuning_jobs").fetchone() == (2,)
+        # the column is dropped in place: a copy of the table would cascade-delete the generation rows
+        assert con.execute("SELECT count(*) FROM tuning_job_generations").fetchone() == (1,)
 
 
 def test_half_migrated_legacy_database_is_repaired_or_refused(tmp_path: Path) -> None:
