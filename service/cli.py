@@ -151,13 +151,14 @@ def display_url(url: str) -> str:
 def migrate(settings: Settings, revision: str, say: Say) -> int:
     from service.infra.db import Database
     from service.infra.migrate import MigrationError, upgrade
-    from service.usecases.robots import seed_presets
 
     try:
         upgrade(settings.database_url, revision)
     except MigrationError as exc:
         say(f"spacearm migrate: {exc}", True)
         return 1
+    from service.usecases.robots import seed_presets  # the engine: only once the schema is there
+
     db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
     seed_presets(db)
     db.dispose()

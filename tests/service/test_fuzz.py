@@ -32,7 +32,7 @@ from tests.service.conftest import ROOT, Stack
 
 pytest.importorskip("schemathesis")
 
-EXAMPLES = int(os.environ.get("SPACEARM_FUZZ_EXAMPLES", "120"))
+EXAMPLES = int(os.environ.get("SPACEARM_FUZZ_EXAMPLES", "50"))
 MIN_REQUESTS = 5000
 CONFIG = Path(__file__).with_name("schemathesis.toml")
 PHASES = ("examples", "coverage", "fuzzing", "stateful")
