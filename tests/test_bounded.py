@@ -70,6 +70,29 @@ def _commanded(task, result, k, gain):
     return twist - gain * np.concatenate([dp, dphi])
 
 
+def _kkt_at_every_step(model, task, result, lam, gain, rows, speed):
+    """Check the KKT conditions of every step of a bounded plan; return how many bounds were
+    active over the plan."""
+    active = 0
+    for k in range(task.n_steps + 1):
+        q, qd = result.q[k], result.qd[k]
+        J = generalized_jacobian(model, State(q, result.base_position[k], result.base_attitude[k])).J_g[:rows]
+        x = _commanded(task, result, k, gain)[:rows]
+        lo, hi = _box(model, speed, q, task.dt)
+        assert np.all(lo <= qd) and np.all(qd <= hi)
+        grad = J.T @ (J @ qd - x) + lam**2 * qd
+        scale = np.abs(J.T @ J).max() * np.abs(qd).max() + np.abs(J.T @ x).max() + lam**2 * np.abs(qd).max() + 1e-300
+        tol = 1e-9 * scale
+        at_hi, at_lo = qd == hi, qd == lo
+        free = ~(at_hi | at_lo)
+        where = f"k={k} grad={grad} lo={lo} hi={hi} qd={qd}"
+        np.testing.assert_allclose(grad[free], 0.0, atol=tol, err_msg=where)  # stationary in the free joints
+        assert np.all(grad[at_hi & ~at_lo] <= tol), where  # pushed up against the upper bound
+        assert np.all(grad[at_lo & ~at_hi] >= -tol), where  # pushed down against the lower bound
+        active += int(np.sum(~free))
+    return active
+
+
 @settings(max_examples=12, deadline=None)
 @given(
     st.integers(0, 2**32 - 1),
@@ -91,23 +114,7 @@ def test_every_step_satisfies_the_kkt_conditions_and_every_limit(seed, shape, la
     assert np.all(np.abs(result.qd) <= speed)
     assert np.all(result.q >= model.lower_limits) and np.all(result.q <= model.upper_limits)
     assert result.metrics.joint_speed_limit_respected and result.metrics.position_limits_respected
-    active = 0
-    for k in range(task.n_steps + 1):
-        q, qd = result.q[k], result.qd[k]
-        J = generalized_jacobian(model, State(q, result.base_position[k], result.base_attitude[k])).J_g[:rows]
-        x = _commanded(task, result, k, gain)[:rows]
-        lo, hi = _box(model, speed, q, task.dt)
-        assert np.all(lo <= qd) and np.all(qd <= hi)
-        grad = J.T @ (J @ qd - x) + lam**2 * qd
-        scale = np.abs(J.T @ J).max() * np.abs(qd).max() + np.abs(J.T @ x).max() + lam**2 * np.abs(qd).max() + 1e-300
-        tol = 1e-9 * scale
-        at_hi, at_lo = qd == hi, qd == lo
-        free = ~(at_hi | at_lo)
-        note(f"k={k} grad={grad} lo={lo} hi={hi} qd={qd}")
-        np.testing.assert_allclose(grad[free], 0.0, atol=tol)  # stationary in the free joints
-        assert np.all(grad[at_hi & ~at_lo] <= tol)  # pushed up against the upper bound
-        assert np.all(grad[at_lo & ~at_hi] >= -tol)  # pushed down against the lower bound
-        active += int(np.sum(~free))
+    active = _kkt_at_every_step(model, task, result, lam, gain, rows, speed)
     note(f"active bounds over the plan: {active}")
 
 
@@ -140,6 +147,8 @@ def test_bounded_is_dls_where_no_bound_is_active(rng, robot):
     assert dls.metrics.max_joint_speed > task.joint_speed_limit  # DLS breaks 6 deg/s ...
     assert np.abs(bounded.qd).max() <= task.joint_speed_limit  # ... the bounded inverse cannot
     assert np.abs(bounded.qd).max() == task.joint_speed_limit  # and it does use the limit
+    speed = np.full(robot.n_joints, task.joint_speed_limit)
+    assert _kkt_at_every_step(robot, task, bounded, 0.01, 0.0, 6, speed) > 0  # the optimum where bounds bind
     assert np.abs(bounded.q - dls.q).max() > 1e-3
 
 

@@ -342,9 +342,25 @@ class ReplayOut(Output):
         description="largest angular momentum of the system, N m s (ideally 0)"
     )
     com_drift_max_m: float | None = Field(description="largest drift of the system's centre of mass, m (ideally 0)")
+    executed_path_position_error_max_m: float | None = Field(
+        default=None,
+        description="the executed trajectory (the clamped cubic spline through the plan's samples, whose torques the plan "
+        "reports) replayed the same way: its largest position error against the path, m",
+    )
+    executed_path_attitude_error_max_rad: float | None = Field(
+        default=None, description="the executed trajectory's largest attitude error against the path, rad"
+    )
+    executed_plan_gap_position_max_m: float | None = Field(
+        default=None,
+        description="largest end-effector position gap, executed trajectory versus plan, m: how much executing the plan "
+        "smoothly changes its tracking",
+    )
+    executed_plan_gap_attitude_max_rad: float | None = Field(
+        default=None, description="largest end-effector attitude gap, executed trajectory versus plan, rad"
+    )
 
     @classmethod
-    def from_engine(cls, r: ReplayResult) -> ReplayOut:
+    def from_engine(cls, r: ReplayResult, executed: ReplayResult | None = None) -> ReplayOut:
         values = {
             "path_position_error_max_m": r.path_position_error_max,
             "path_position_error_final_m": r.path_position_error_final,
@@ -357,6 +373,13 @@ class ReplayOut(Output):
             "angular_momentum_residual_max_n_m_s": r.angular_momentum_residual_max,
             "com_drift_max_m": r.com_drift_max,
         }
+        if executed is not None:
+            values |= {
+                "executed_path_position_error_max_m": executed.path_position_error_max,
+                "executed_path_attitude_error_max_rad": executed.path_attitude_error_max,
+                "executed_plan_gap_position_max_m": executed.plan_gap_position_max,
+                "executed_plan_gap_attitude_max_rad": executed.plan_gap_attitude_max,
+            }
         return cls(
             success=r.success,
             message=r.message,

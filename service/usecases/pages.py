@@ -37,6 +37,10 @@ REPLAY_ROWS: list[tuple[str, str, str, float]] = [
     ("linear_momentum_residual_max_n_s", "max linear momentum (ideally 0)", "N s", 1.0),
     ("angular_momentum_residual_max_n_m_s", "max angular momentum (ideally 0)", "N m s", 1.0),
     ("com_drift_max_m", "max drift of the system's centre of mass (ideally 0)", "mm", 1e3),
+    ("executed_path_position_error_max_m", "executed smoothly: max position error against the path", "mm", 1e3),
+    ("executed_path_attitude_error_max_rad", "executed smoothly: max attitude error against the path", "deg", DEG),
+    ("executed_plan_gap_position_max_m", "executed smoothly: max gap to the plan, end-effector position", "mm", 1e3),
+    ("executed_plan_gap_attitude_max_rad", "executed smoothly: max gap to the plan, end-effector attitude", "deg", DEG),
 ]
 assert {row[0] for row in REPLAY_ROWS} == set(ReplayOut.model_fields) - {"success", "message"}
 

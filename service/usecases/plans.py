@@ -23,6 +23,7 @@ from sqlalchemy import ColumnElement, func, or_, select
 from sqlalchemy.orm import Session
 
 from engine import DurationSearch, Inverse, PlanResult, PlanSetup, RobotModel, replay, run_plan, shortest_duration
+from engine.executed import replay_executed
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from service.errors import ApiValidationError, NotFoundError, body_invalid
 from service.infra import jsonio
@@ -193,8 +194,11 @@ def finish(
 ) -> Planned:
     """Replay the plan if asked and build its row (``request``: the request as stored)."""
     skipped = replay_skip_reason(result, settings.max_replay_steps) if body.replay else None
-    checked = replay(prepared.model, result) if body.replay and skipped is None else None
-    replayed = ReplayOut.from_engine(checked) if checked is not None else ReplayOut.skipped(skipped) if skipped else None
+    replayed = None
+    if skipped is not None:
+        replayed = ReplayOut.skipped(skipped)
+    elif body.replay:
+        replayed = ReplayOut.from_engine(replay(prepared.model, result), replay_executed(prepared.model, result))
     record = record_of(result, prepared.model)
     row = Plan(
         robot_id=prepared.robot_id,

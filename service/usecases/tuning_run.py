@@ -1,7 +1,7 @@
 """Running one tuning job (the worker's side): the request is converted once into the engine's
-problems (the tuned method, then the DLS baseline with the same GA settings), and the worker
-drives each GA itself, a generation at a time (:class:`engine.tuning.BinaryGA`: ask, evaluate,
-tell). After each generation one write (:func:`service.queue.heartbeat`) appends the
+problems (the tuned method, then the DLS baseline with the same GA settings), and each GA runs
+through the engine's one driver, a generation at a time (:func:`engine.tuning.run`: ask,
+evaluate, tell). After each generation its callback makes one write (:func:`service.queue.heartbeat`) appends the
 generation's row, updates the progress summary and renews the lease. Between those writes a
 watcher thread renews the lease and, every second, looks for a cancellation, so a cancel (or a
 lost lease, or a worker shutdown) stops the GA within a second or two, inside a generation: all
@@ -27,8 +27,7 @@ from pydantic import ValidationError
 from sqlalchemy import delete
 
 from engine.errors import ParameterError
-from engine.planner import EvaluationStoppedError
-from engine.tuning import BinaryGA, MapFn, Termination, TuneResult, TuningProblem, result_of
+from engine.tuning import BinaryGA, MapFn, Termination, TuneProgress, TuneResult, TuningProblem, run
 from service import queue
 from service.errors import ApiError
 from service.infra import jsonio
@@ -141,58 +140,45 @@ class _Job:
     def phase(
         self, body: TuningJobRequest, index: int, problem: TuningProblem, role: str, evaluations: int, map_fn: MapFn, chunks: int
     ) -> TuneResult:
-        """One GA run, a generation at a time, each written as it ends."""
+        """One GA run (the engine's :func:`engine.tuning.run`), each generation written as it ends."""
         generations = body.ga.generations
         total = generations * len(body.phases())
-        ga = BinaryGA(problem.bounds, body.ga.to_engine(), body.ga.seed)
-        started = time.perf_counter()
-        interrupted = False
         method = problem.method.name
-        while True:
-            try:
-                objective_b = problem.evaluate(ga.ask(), map_fn=map_fn, chunks=chunks, stop=self.termination)
-            except EvaluationStoppedError:
-                interrupted = True
-                break
-            record = ga.tell(objective_b)
+
+        def written(done: TuneProgress) -> None:
             self.records += 1
             log.info(
                 "job %s: %s generation %d/%d, best B %.6g, %d feasible",
                 self.claim.job_id,
                 method,
-                record.generation,
+                done.generation,
                 generations,
-                record.best,
-                record.feasible,
+                done.best_objective_b,
+                done.feasible,
             )
-            progress = jsonio.clean(
-                {
-                    "generation": index * generations + record.generation,
-                    "generations": total,
-                    "evaluations": evaluations + ga.planned * problem.n_tasks,
-                    "best_objective_b": record.best,
-                    "best_params": record.best_params,
-                    "phase": method,
-                    "attempt": self.claim.attempts,  # the rows of this attempt are the job's history
-                    "records": self.records,
-                }
-            )
-            row = jsonio.clean(
-                {
-                    "seq": self.records,
-                    "phase": method,
-                    "role": role,
-                    "generation": record.generation,
-                    "best": record.best,
-                    "mean": record.mean,
-                    "feasible": record.feasible,
-                }
-            )
-            self.write(progress, row)
-            if record.generation >= generations or self.termination.is_set():
-                break
-        seed = body.ga.seed
-        return result_of(problem, ga, self.termination, time.perf_counter() - started, seed, interrupted)
+            progress = {
+                "generation": index * generations + done.generation,
+                "generations": total,
+                "evaluations": evaluations + done.evaluations,
+                "best_objective_b": done.best_objective_b,
+                "best_params": done.best_params,
+                "phase": method,
+                "attempt": self.claim.attempts,  # the rows of this attempt are the job's history
+                "records": self.records,
+            }
+            row = {
+                "seq": self.records,
+                "phase": method,
+                "role": role,
+                "generation": done.generation,
+                "best": done.best_objective_b,
+                "mean": done.mean_objective_b,
+                "feasible": done.feasible,
+            }
+            self.write(jsonio.clean(progress), jsonio.clean(row))
+
+        ga = BinaryGA(problem.bounds, body.ga.to_engine(), body.ga.seed)
+        return run(problem, ga, self.termination, callback=written, map_fn=map_fn, chunks=chunks, seed=body.ga.seed)
 
 
 def cancelled_result(body: TuningJobRequest, results: list[TuneResult], evaluations: int) -> dict[str, Any] | None:

@@ -69,6 +69,25 @@ def test_a_plan_returns_the_dynamics_of_its_executed_trajectory(client: httpx.Cl
     assert m["max_joint_force_n"] == 0.0 and created["success"] is True
 
 
+def test_the_replay_says_how_executing_the_plan_changes_its_tracking(client: httpx.Client) -> None:
+    """The executed trajectory replayed like the plan: the same numbers as the engine's
+    replay_executed, a gap from the plan far below the tracking error but not zero (the base
+    attitude depends on the joint path between the samples)."""
+    from engine.executed import replay_executed
+
+    replay = _plan(client, replay=True)["replay"]
+    model = table1_robot()
+    expected = replay_executed(model, plan(model, paper_task(), make_inverse("adaptive", **PAPER_TASK_PARAMS["adaptive"])))
+    assert replay["success"] is True and expected.success
+    gap = replay["executed_plan_gap_position_max_m"]
+    assert gap == pytest.approx(expected.plan_gap_position_max, rel=1e-6, abs=1e-12)
+    assert replay["executed_path_position_error_max_m"] == pytest.approx(expected.path_position_error_max, rel=1e-6)
+    assert 0.0 < gap < 0.05 * replay["path_position_error_max_m"], replay
+    assert 0.0 < replay["executed_plan_gap_attitude_max_rad"] < 1e-3
+    not_replayed = _plan(client)  # replay false: no replay section at all
+    assert not_replayed.get("replay") is None
+
+
 def test_prismatic_joints_get_forces_in_their_own_arrays(client: httpx.Client) -> None:
     preset = client.get("/v1/task-presets/arm3-position").json()
     r = client.post("/v1/plans", json={"robot_id": "arm3", "task": preset["task"], "method": {"name": "dls"}, "replay": False})

@@ -235,3 +235,26 @@ def test_vendored_three_is_what_the_lockfile_builds() -> None:
     version = lock["packages"]["node_modules/three"]["version"]
     assert (ROOT / "service" / "static" / f"three-{version}.min.js").is_file()
     assert f'from "./three-{version}.min.js"' in (ROOT / "service" / "static" / "view3d.js").read_text()
+
+
+def test_the_form_starts_with_values_that_succeed_and_the_paper_values_are_one_click_away(web: httpx.Client) -> None:
+    """Issue 18: submitting the index's plan form as it comes gives a successful plan; the paper's
+    own values fill the form from one link, and with them the plan fails on the speed limit."""
+    doc = parse(web.get("/"))
+    form = {e.get("name"): e.get("value") for e in doc.xpath("//form[@id='plan-form']//input[@name]")}
+    form |= {s.get("name"): s.xpath("./option[@selected]/@value")[0] for s in doc.xpath("//form[@id='plan-form']//select")}
+    assert form["method"] == "adaptive" and form["adaptive.lambda_max"] == "0.04" and form["adaptive.epsilon"] == "0.37"
+    submitted = web.post("/web/plans", data=form, follow_redirects=False)
+    assert submitted.status_code == 303, submitted.text
+    plan_id = submitted.headers["location"].rsplit("/", 1)[-1]
+    assert web.get(f"/v1/plans/{plan_id}").json()["success"] is True
+    link = doc.xpath("//a[@id='paper-values-link']/@href")[0]
+    paper = parse(web.get(link))
+    values = {e.get("name"): e.get("value") for e in paper.xpath("//form[@id='plan-form']//input[@name]")}
+    assert values["adaptive.lambda_max"] == "0.0571" and values["adaptive.epsilon"] == "0.0677"
+    paper_form = {**form, **{k: values[k] for k in ("adaptive.lambda_max", "adaptive.epsilon")}}
+    submitted = web.post("/web/plans", data=paper_form, follow_redirects=False)
+    assert submitted.status_code == 303, submitted.text
+    body = web.get(f"/v1/plans/{submitted.headers['location'].rsplit('/', 1)[-1]}").json()
+    assert body["success"] is False and "8.54 deg/s" in doc.xpath("string(//p[@id='paper-values'])")
+    assert body["metrics"]["max_joint_speed_deg_s"] == pytest.approx(8.54, abs=0.005)
