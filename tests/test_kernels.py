@@ -240,3 +240,18 @@ def test_kernel_stops_at_a_non_finite_twist(robot, task):
     assert metrics[plan_kernels.FINITE] == 0.0 and metrics[plan_kernels.T_DIVERGED] == 7 * task.dt
     assert math.isnan(metrics[plan_kernels.POS_MAX]) and math.isinf(metrics[plan_kernels.MAX_SPEED])
     assert metrics[plan_kernels.DYNAMICS] == 0.0 and math.isnan(metrics[plan_kernels.MAX_TORQUE])  # none for a diverged plan
+
+
+def test_the_replay_uses_scipy_dop853_tableau():
+    """The compiled replay loads scipy's DOP853 coefficients from their file (not through
+    scipy.integrate's package import): the same numbers as scipy's own module."""
+    from scipy.integrate._ivp import dop853_coefficients as scipy_dop
+
+    from engine.kernels import replay as replay_kernels
+
+    assert replay_kernels.N_STAGES == scipy_dop.N_STAGES
+    n = scipy_dop.N_STAGES
+    np.testing.assert_array_equal(replay_kernels.A, scipy_dop.A[:n, :n])
+    for name in ("B", "E3", "E5"):
+        np.testing.assert_array_equal(getattr(replay_kernels, name), getattr(scipy_dop, name))
+    np.testing.assert_array_equal(replay_kernels.C, scipy_dop.C[:n])

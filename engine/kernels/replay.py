@@ -17,14 +17,33 @@ The joint motion is an input, a polynomial per step: linear for a plan
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+from typing import Any
+
 import numpy as np
-from scipy.integrate._ivp import dop853_coefficients as _dop
 
 from engine.kernels.chain import SLIDE, kinematics, kinematics_buffers
 from engine.kernels.jit import kernel
 from engine.kernels.linalg import solve6
 from engine.kernels.so3 import quaternion_to_matrix
 
+
+def _dop853_coefficients() -> object:
+    """scipy's DOP853 tableau (``scipy/integrate/_ivp/dop853_coefficients.py``), loaded from its
+    file alone: importing it as ``scipy.integrate._ivp...`` runs ``scipy.integrate``'s package
+    import, 0.3 s of every process's start, for a table of numbers."""
+    scipy_spec = importlib.util.find_spec("scipy")
+    assert scipy_spec is not None and scipy_spec.origin is not None, "scipy is a dependency"
+    path = Path(scipy_spec.origin).parent / "integrate" / "_ivp" / "dop853_coefficients.py"
+    spec = importlib.util.spec_from_file_location("spacearm_dop853_coefficients", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+_dop: Any = _dop853_coefficients()
 N_STAGES = _dop.N_STAGES
 A = np.ascontiguousarray(_dop.A[:N_STAGES, :N_STAGES])
 B = np.ascontiguousarray(_dop.B)

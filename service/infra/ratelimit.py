@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-
-from limits import RateLimitItemPerMinute
-from limits.storage import MemoryStorage
-from limits.strategies import MovingWindowRateLimiter
+from typing import Any
 
 
 class AddressLimiter:
@@ -20,13 +17,25 @@ class AddressLimiter:
 
     def __init__(self, name: str, per_minute: int) -> None:
         self.name = name
-        self.item = RateLimitItemPerMinute(per_minute)
-        self.limiter = MovingWindowRateLimiter(MemoryStorage())
+        self.per_minute = per_minute
+        self._limiter: Any = None
+
+    def _ready(self) -> Any:
+        """The limiter, made on the first hit (``limits`` takes 0.15 s to import: not at start-up)."""
+        if self._limiter is None:
+            from limits import RateLimitItemPerMinute
+            from limits.storage import MemoryStorage
+            from limits.strategies import MovingWindowRateLimiter
+
+            self.item = RateLimitItemPerMinute(self.per_minute)
+            self._limiter = MovingWindowRateLimiter(MemoryStorage())
+        return self._limiter
 
     def hit(self, address: str) -> int | None:
         """Count an attempt from ``address``: None if it is allowed, else the seconds until the
         next one is (for ``Retry-After``)."""
-        if self.limiter.hit(self.item, self.name, address):
+        limiter = self._ready()
+        if limiter.hit(self.item, self.name, address):
             return None
-        reset = self.limiter.get_window_stats(self.item, self.name, address).reset_time
+        reset = limiter.get_window_stats(self.item, self.name, address).reset_time
         return max(1, math.ceil(reset - time.time()))

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.io
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -114,6 +113,8 @@ def to_mat(record: dict[str, np.ndarray], joint_names: list[str], plan_id: str) 
     variables["joint_names"] = np.array(joint_names, dtype=object)
     variables["plan_id"] = plan_id
     buf = io.BytesIO()
+    import scipy.io  # 0.35 s of imports: only for a .mat export
+
     scipy.io.savemat(buf, variables, do_compression=True, oned_as="column")
     return buf.getvalue()
 
