@@ -34,10 +34,14 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy engine service
 
+# The suite runs in TEST_WORKERS processes (pytest-xdist), a test file each at a time: most tests
+# wait on servers, workers and jobs of their own. The kernels are compiled (or loaded) once first.
+TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(BIN)/ruff check engine service tests bench
 	$(BIN)/mypy engine service
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -c "import engine; engine.warm_up()"
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The reference (docs/) as a static site in var/site; `$(BIN)/mkdocs serve` to read it while editing.
 docs: $(STAMP)

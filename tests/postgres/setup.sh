@@ -21,7 +21,9 @@ if [ "$(id -u)" != "0" ]; then
     if command -v sudo >/dev/null 2>&1; then SUDO="sudo -n"; else echo "setup.sh: need root to apt-get install postgresql" >&2; exit 1; fi
 fi
 export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
+# apt-get holds dpkg's lock: processes of the suite (pytest-xdist) take turns on this lock instead of failing
+APT_LOCK=""
+if command -v flock >/dev/null 2>&1; then APT_LOCK="flock -w 1800 ${TMPDIR:-/tmp}/spacearm-apt.lock"; fi
 # the Debian package also creates the `postgres` OS user the tests run the server as
-$SUDO apt-get install -y -qq --no-install-recommends postgresql >/dev/null
+$APT_LOCK sh -c "$SUDO apt-get update -qq && $SUDO apt-get install -y -qq --no-install-recommends postgresql >/dev/null"
 find_bin
