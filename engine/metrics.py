@@ -3,8 +3,9 @@
 ``B = w1 dp + w2 dp_phi + P_l``: ``dp`` is the end-effector position error (m), aggregated over
 the path (``max`` by default, ``rms`` or ``final``: the paper does not say which); ``P_l`` is
 +inf when any commanded joint speed exceeds its limit (rad/s for revolute joints, m/s for
-prismatic ones), a joint leaves its position limits or a joint's torque (force) along the
-executed trajectory exceeds the robot's effort limit, else 0. A task that tracks the position
+prismatic ones), a joint leaves its position limits, a joint's torque (force) along the
+executed trajectory exceeds the robot's effort limit or two shapes come closer than the task's
+clearance (:mod:`engine.geometry`), else 0. A task that tracks the position
 only has no attitude term (its attitude is not followed). The attitude term ``dp_phi`` has
 two readings (``attitude_term``):
 
@@ -52,8 +53,9 @@ NULL_NOT_FINITE = "null if not finite"
 
 #: How a value is shown by the API: as it is (SI), in degrees, or as a 1-based joint number.
 ApiConversion = Literal["", "deg", "joint"]
-#: The API's type of a value: a number, a flag, a joint number or one of the engine's vocabularies.
-ApiType = Literal["number", "bool", "joint", "attitude_term", "tracks"]
+#: The API's type of a value: a number, a flag, a joint number, a pair of shape owners' names or
+#: one of the engine's vocabularies.
+ApiType = Literal["number", "bool", "joint", "pair", "attitude_term", "tracks"]
 REQUIRED: Any = ...  # an API field every stored plan has
 
 
@@ -344,6 +346,60 @@ class Metrics(Generic[V]):
         api="time_torque_limit_exceeded_s",
         api_default=None,
     )
+    min_clearance: V = metric(
+        "m",
+        "the smallest distance between any two shapes that are checked (links, carrier, obstacles), at the samples and "
+        "between them, m; negative: they overlap; null for a plan without collision geometry",
+        slot=kp.MIN_CLEARANCE,
+        api="min_clearance_m",
+        api_default=None,
+        web=WebRow("min clearance", "mm", 1e3),
+    )
+    min_clearance_pair: Any = metric(
+        "",
+        "the pair at the smallest distance: two names (a link's name, `carrier`, or `obstacle<i>` for the task's "
+        "obstacle i); null without geometry",
+        api="min_clearance_pair",
+        api_type="pair",
+        api_default=None,
+    )
+    time_of_min_clearance: V = metric(
+        "s",
+        "when the smallest distance occurred, s; null without geometry",
+        slot=kp.T_MIN_CLEARANCE,
+        api="t_min_clearance_s",
+        api_default=None,
+    )
+    clearance_respected: V = metric(
+        "",
+        "no pair came closer than the task's `clearance_m` (true without geometry; null: a plan stored before "
+        "clearances were checked)",
+        api="clearance_respected",
+        api_type="bool",
+        api_default=None,
+        web=WebRow("clearance respected", "", None),
+    )
+    clearance_broken_pair: Any = metric(
+        "",
+        "the first pair found closer than the clearance; null if none",
+        api="clearance_broken_pair",
+        api_type="pair",
+        api_default=None,
+    )
+    time_collision: V = metric(
+        "s",
+        "when that pair was first closer than the clearance, s; null if none",
+        slot=kp.T_COLLISION,
+        api="t_clearance_broken_s",
+        api_default=None,
+    )
+    collision_distance: V = metric(
+        "m",
+        "that pair's distance then, m (negative: overlapping; between samples, a lower bound); null if none",
+        slot=kp.COLLISION_DISTANCE,
+        api="clearance_broken_distance_m",
+        api_default=None,
+    )
     # Not in the API: the objective's settings, joint indices, divergence.
     weights: tuple[float, float] = metric("")
     aggregation: str = metric("")
@@ -356,6 +412,10 @@ class Metrics(Generic[V]):
     max_joint_force_joint: V = metric("", slot=kp.MAX_FORCE_JOINT)  # 0-based, -1 without prismatic joints
     torque_limit_peak: V = metric("N m or N", slot=kp.EFFORT_PEAK)  # the largest effort of torque_limit_joint
     dynamics_computed: V = metric("", slot=kp.DYNAMICS)  # the torques were computed (1.0) or not (0.0)
+    min_clearance_pair_index: V = metric("", slot=kp.CLEARANCE_PAIR)  # index of the checked pairs, -1: none
+    collision_pair: V = metric("", slot=kp.COLLISION_PAIR)  # the first pair below the clearance, -1: none
+    geometry_checked: V = metric("", slot=kp.GEOMETRY)  # 1.0 when the plan had pairs to check
+    clearance: float = metric("m")  # the task's clearance
 
     @property
     def max_joint_speed_deg_s(self) -> V:
@@ -389,6 +449,8 @@ _INDICES = frozenset(
         "max_joint_torque_joint",
         "max_joint_force_joint",
         "torque_limit_joint",
+        "min_clearance_pair_index",
+        "collision_pair",
     }
 )
 
@@ -424,7 +486,8 @@ class Objective:
 def objective(metrics: Metrics[Any], settings: Objective) -> FloatArray:
     """The paper's ``B`` per plan from aggregated errors: ``w1 dp + w2 dp_phi`` with the
     aggregation and attitude term of ``settings`` (``w1 dp`` alone for a position task); +inf
-    where a speed, position or effort limit is broken or the plan is not finite (``P_l``)."""
+    where a speed, position or effort limit or the clearance is broken or the plan is not finite
+    (``P_l``)."""
     w1, w2 = settings.weights
     position = np.asarray(getattr(metrics, f"position_error_{settings.aggregation}"), dtype=float)
     b = w1 * position
@@ -435,6 +498,7 @@ def objective(metrics: Metrics[Any], settings: Objective) -> FloatArray:
         np.asarray(metrics.joint_speed_limit_respected, dtype=bool)
         & np.asarray(metrics.position_limits_respected, dtype=bool)
         & np.asarray(metrics.joint_torque_limit_respected, dtype=bool)
+        & np.asarray(metrics.clearance_respected, dtype=bool)
         & np.isfinite(b)
     )
     result: FloatArray = np.where(ok, b, np.inf)
@@ -448,10 +512,13 @@ def batch_metrics(
     *,
     linear_joint_speed_limit: float = math.inf,
     tracks: str = "pose",
+    clearance: float = 0.0,
+    pair_names: Sequence[tuple[str, str]] = (),
 ) -> Metrics[Column]:
     """Metrics of ``B`` plans from the planner kernel's metrics rows ``raw (B, N_METRICS)``
     (:mod:`engine.kernels.plan`); ``settings`` say how ``B`` is formed, ``tracks`` what the
-    plans followed."""
+    plans followed, ``clearance`` (m) and ``pair_names`` (the owners of each checked pair) what
+    their geometry was."""
     cols = raw.T.copy()  # one copy: each metric's column a contiguous row of its own
     values: dict[str, Any] = {
         s.name: cols[s.slot].astype(int) if s.name in _INDICES else cols[s.slot] for s in _SLOTS if s.slot is not None
@@ -463,6 +530,15 @@ def batch_metrics(
     )
     values["position_limits_respected"] = values["position_limit_joint"] < 0
     values["joint_torque_limit_respected"] = finite & (values["torque_limit_joint"] < 0)
+    values["clearance_respected"] = values["collision_pair"] < 0
+
+    def names(indices: np.ndarray) -> np.ndarray:
+        out = np.empty(indices.shape[0], dtype=object)
+        out[:] = [pair_names[i] if i >= 0 else None for i in indices.tolist()]
+        return out
+
+    values["min_clearance_pair"] = names(values["min_clearance_pair_index"])
+    values["clearance_broken_pair"] = names(values["collision_pair"])
     values.update(
         objective_b=np.empty(raw.shape[0]),
         joint_speed_limit=float(joint_speed_limit),
@@ -471,6 +547,7 @@ def batch_metrics(
         aggregation=settings.aggregation,
         attitude_term=settings.attitude_term,
         tracks=tracks,
+        clearance=float(clearance),
     )
     result: Metrics[Column] = Metrics(**values)
     result.objective_b[:] = objective(result, settings)

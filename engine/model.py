@@ -29,6 +29,7 @@ import numpy as np
 
 from engine.bounds import MAX_EFFORT, MAX_INERTIA, MAX_JOINT_LIMIT, MAX_JOINTS, MAX_LENGTH_M, MAX_MASS_KG
 from engine.errors import ParameterError, finite_array
+from engine.geometry import Shape, capsule, shape_from_dict, shapes_from_list
 from engine.kernels.chain import Chain
 from engine.spatial import FloatArray, is_rotation
 from engine.urdf import UrdfError, dict_to_urdf, urdf_element, urdf_to_dict
@@ -131,6 +132,35 @@ def _effort(data: dict[str, Any], field: str, joint_type: str) -> float:
     return limit
 
 
+def _collision_radius(value: Any, field: str) -> float:
+    """A link's capsule radius (m, > 0 and at most :data:`engine.bounds.MAX_LENGTH_M`); null or
+    left out: none."""
+    if value is None:
+        return 0.0
+    try:
+        radius = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(field, "expected a number or null") from exc
+    if not (math.isfinite(radius) and 0.0 < radius <= MAX_LENGTH_M):
+        raise ParameterError(field, f"must be finite, > 0 and at most {MAX_LENGTH_M:g} m (null for none), got {value!r}")
+    return radius
+
+
+def _collision_box(value: Any) -> tuple[FloatArray, FloatArray] | None:
+    """The carrier's box ``{"size_m": [x, y, z], "center_m": [x, y, z]}`` (carrier frame, the
+    centre about the carrier's CoM); null or left out: none."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise ParameterError("base.collision_box", "expected an object with size_m and center_m")
+    extra = sorted(set(value) - {"size_m", "center_m"})
+    if extra:
+        raise ParameterError(f"base.collision_box.{extra[0]}", "not a field of the box (size_m, center_m)")
+    centre = finite_array(value.get("center_m", [0.0, 0.0, 0.0]), (3,), "base.collision_box.center_m", MAX_LENGTH_M)
+    box = shape_from_dict({"type": "box", "size_m": value.get("size_m")}, "base.collision_box")
+    return _frozen(2.0 * box.dims), centre
+
+
 @dataclass(frozen=True)
 class Link:
     """One link and the joint that drives it (joint i moves link i). ``joint_axis`` is the
@@ -147,6 +177,17 @@ class Link:
     lower: float = -math.inf  # position limits, rad (revolute) or m (prismatic)
     upper: float = math.inf
     effort_limit: float = math.inf  # |torque| N m (revolute) or |force| N (prismatic); inf: none
+    collision_radius: float = 0.0  # m: a capsule from joint i to joint i+1 (or the end effector); 0: none
+    collision_shapes: tuple[Shape, ...] = ()  # more shapes, link frame, about the CoM
+
+    @property
+    def shapes(self) -> tuple[Shape, ...]:
+        """The link's collision shapes (link frame, positions about its CoM): the capsule of
+        ``collision_radius`` from joint i's origin (``-a``; for a prismatic joint where it is at
+        q = 0, as the link carries it) to the next joint's (``b``), then ``collision_shapes``."""
+        if self.collision_radius > 0.0:
+            return (capsule(-self.a, self.b, self.collision_radius), *self.collision_shapes)
+        return self.collision_shapes
 
     @property
     def prismatic(self) -> bool:
@@ -165,6 +206,16 @@ class Base:
     inertia: FloatArray  # (3, 3) kg m^2 about the base CoM, base frame
     b: FloatArray  # (3,) m, base CoM -> joint 1
     name: str = "base"
+    collision_box: tuple[FloatArray, FloatArray] | None = None  # (size (3,) m, centre (3,) m about the CoM)
+    collision_shapes: tuple[Shape, ...] = ()  # more shapes, carrier frame, about the CoM
+
+    @property
+    def shapes(self) -> tuple[Shape, ...]:
+        """The carrier's collision shapes (carrier frame, positions about its CoM)."""
+        if self.collision_box is None:
+            return self.collision_shapes
+        size, centre = self.collision_box
+        return (Shape("box", 0.0, centre, np.eye(3), 0.5 * size), *self.collision_shapes)
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,6 +272,11 @@ class RobotModel:
     def effort_limited(self) -> bool:
         """Whether any joint has a torque (force) limit: then every plan's torques are checked."""
         return bool(np.any(np.isfinite(self.effort_limits)))
+
+    @cached_property
+    def has_geometry(self) -> bool:
+        """Whether any body has a collision shape."""
+        return bool(self.base.shapes) or any(link.shapes for link in self.links)
 
     @property
     def total_mass(self) -> float:
@@ -293,6 +349,8 @@ class RobotModel:
             inertia=_inertia(base_data.get("inertia"), "base.inertia"),
             b=finite_array(base_data.get("b"), (3,), "base.b", MAX_LENGTH_M),
             name=base_name,
+            collision_box=_collision_box(base_data.get("collision_box")),
+            collision_shapes=shapes_from_list(base_data.get("collision_shapes"), "base.collision_shapes"),
         )
         links_data = data.get("links")
         if not isinstance(links_data, list) or not 1 <= len(links_data) <= MAX_JOINTS:
@@ -328,6 +386,8 @@ class RobotModel:
                     lower=lower,
                     upper=upper,
                     effort_limit=effort,
+                    collision_radius=_collision_radius(ld.get("collision_radius_m"), f"{field}.collision_radius_m"),
+                    collision_shapes=shapes_from_list(ld.get("collision_shapes"), f"{field}.collision_shapes"),
                 )
             )
         ee = data.get("end_effector", {"C_e": np.eye(3).tolist()})
@@ -347,6 +407,11 @@ class RobotModel:
         base: dict[str, Any] = {"mass": self.base.mass, "inertia": self.base.inertia.tolist(), "b": self.base.b.tolist()}
         if self.base.name != "base":
             base["name"] = self.base.name
+        if self.base.collision_box is not None:
+            size, centre = self.base.collision_box
+            base["collision_box"] = {"size_m": size.tolist(), "center_m": centre.tolist()}
+        if self.base.collision_shapes:
+            base["collision_shapes"] = [shape.to_dict() for shape in self.base.collision_shapes]
         links: list[dict[str, Any]] = []
         for link in self.links:
             entry: dict[str, Any] = {
@@ -367,6 +432,10 @@ class RobotModel:
                 }
             if math.isfinite(link.effort_limit):
                 entry[EFFORT_KEYS[link.joint_type]] = link.effort_limit
+            if link.collision_radius > 0.0:
+                entry["collision_radius_m"] = link.collision_radius
+            if link.collision_shapes:
+                entry["collision_shapes"] = [shape.to_dict() for shape in link.collision_shapes]
             links.append(entry)
         end_effector: dict[str, Any] = {"C_e": self.C_e.tolist()}
         if self.end_effector_name != "end_effector":

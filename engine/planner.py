@@ -37,6 +37,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from engine.errors import ParameterError
+from engine.geometry import Geometry, build_geometry
 from engine.inverses import Inverse, kernel_param_rows, make_inverse, method_spec
 from engine.kernels import dynamics as dynamics_kernels
 from engine.kernels import plan as plan_kernels
@@ -180,6 +181,17 @@ class PlanSetup:
                 f"a secondary objective needs a redundant arm: more joints than the {rows} the {self.task.tracks} task "
                 f"tracks (this robot has {self.model.n_joints})",
             )
+        if self.task.scene.obstacles and not self.model.has_geometry:
+            raise ParameterError(
+                "task.scene.obstacles",
+                "the robot has no collision shapes (collision_radius_m or collision_shapes on its links, collision_box "
+                "or collision_shapes on its base): nothing can be checked against the obstacles",
+            )
+        secondary = self.options.secondary
+        if secondary is not None and secondary.objective_id == redundancy_kernels.CLEARANCE and not self.geometry.active:
+            raise ParameterError(
+                "secondary", "the clearance objective needs collision geometry: shapes on the robot (and obstacles)"
+            )
 
     @classmethod
     def of_tasks(cls, model: RobotModel, tasks: Sequence[CartesianTask], options: PlanOptions) -> list[PlanSetup]:
@@ -202,6 +214,15 @@ class PlanSetup:
         for name, value in (("model", self.model), ("task", self.task.with_duration(duration)), ("options", self.options)):
             object.__setattr__(setup, name, value)
         return setup
+
+    @cached_property
+    def geometry(self) -> Geometry:
+        """The robot's shapes and the task's obstacles as the kernels take them, with the pairs
+        that are checked (none without shapes)."""
+        model = self.model
+        return build_geometry(
+            [link.shapes for link in model.links], model.base.shapes, [link.name for link in model.links], self.task.scene
+        )
 
     @cached_property
     def speed_limits(self) -> FloatArray:
@@ -236,7 +257,8 @@ class PlanSetup:
         computed for a kept plan (``record``) and, for metrics only, when the robot has an
         effort limit."""
         head, tail = self._args
-        return (*head, int(inverse.method_id), params, *tail, bool(record or self.model.effort_limited))
+        geometry = self.geometry.kernel_args()
+        return (*head, int(inverse.method_id), params, *tail, bool(record or self.model.effort_limited), geometry)
 
     def metrics(self, raw: FloatArray) -> Metrics[Column]:
         """The metrics of the kernel's rows ``raw (B, N_METRICS)`` of plans of this setup."""
@@ -247,6 +269,8 @@ class PlanSetup:
             self.options.objective,
             linear_joint_speed_limit=task.linear_joint_speed_limit,
             tracks=task.tracks,
+            clearance=task.scene.clearance,
+            pair_names=[self.geometry.pair_names(p) for p in range(self.geometry.pairs.shape[0])],
         )
 
 
@@ -264,7 +288,19 @@ def _trace_arrays(n_samples: int, n: int, rows: int) -> tuple[FloatArray, ...]:
         np.empty((n_samples, m)),
         np.empty(n_samples),
         np.empty(n_samples),
+        np.full(n_samples, np.nan),
+        np.full(n_samples, -1.0),
     )
+
+
+def _clearance_problem(metrics: Metrics[float], geometry: Geometry | None) -> str:
+    """The verdict's words for a plan that came closer than the clearance: the pair, the time
+    and the distance (negative: the shapes overlap)."""
+    pair = int(metrics.collision_pair)
+    names = " and ".join(geometry.pair_names(pair)) if geometry is not None else f"pair {pair}"
+    d = float(metrics.collision_distance)
+    what = f"overlap by {-d * 1e3:.4g} mm" if d < 0.0 else f"come within {d * 1e3:.4g} mm"
+    return f"clearance broken: {names} {what} at t = {metrics.time_collision:g} s (clearance {metrics.clearance * 1e3:.4g} mm)"
 
 
 def _effort_problem(metrics: Metrics[float], model: RobotModel | None) -> str:
@@ -281,7 +317,9 @@ def _effort_problem(metrics: Metrics[float], model: RobotModel | None) -> str:
     )
 
 
-def _verdict(metrics: Metrics[float], options: PlanOptions, model: RobotModel | None = None) -> tuple[bool, str]:
+def _verdict(
+    metrics: Metrics[float], options: PlanOptions, model: RobotModel | None = None, geometry: Geometry | None = None
+) -> tuple[bool, str]:
     position_tolerance, attitude_tolerance = options.position_tolerance, options.attitude_tolerance
     problems = []
     if not metrics.finite:
@@ -337,6 +375,8 @@ def _verdict(metrics: Metrics[float], options: PlanOptions, model: RobotModel | 
             problems.append(where)
         if not metrics.joint_torque_limit_respected:
             problems.append(_effort_problem(metrics, model))
+    if not metrics.clearance_respected:  # also reported for a plan that diverged after the contact
+        problems.append(_clearance_problem(metrics, geometry))
     if problems:
         return False, "; ".join(problems)
     return True, "ok"
@@ -399,7 +439,9 @@ class PlanResult:
     """A planned trajectory; arrays are time-major with ``N + 1`` samples.
 
     ``qd[k]`` is the joint rate commanded over ``[t_k, t_{k+1}]`` (the last one is the rate
-    commanded at the end, zero without feedback). ``damping`` is the effective damping per
+    commanded at the end, zero without feedback). ``clearance`` is the smallest distance of the
+    checked pairs at each sample (:mod:`engine.geometry`; the metrics also count the motion
+    between samples). ``damping`` is the effective damping per
     singular direction (see :mod:`engine.inverses`). The dynamics are those of the executed
     trajectory (:mod:`engine.executed`: the clamped cubic spline through ``q``, from rest to the
     last commanded rate) at the samples; a plan that diverged has none (NaN). After a
@@ -427,6 +469,8 @@ class PlanResult:
     joint_torques: FloatArray  # (N+1, n) N m (N for prismatic joints)
     mount_force: FloatArray  # (N+1, 3) N, exerted by the arm on the carrier, carrier frame
     mount_torque: FloatArray  # (N+1, 3) N m, about joint 1's origin, carrier frame
+    clearance: FloatArray  # (N+1,) m, the smallest distance of any checked pair (NaN without geometry)
+    clearance_pair: tuple[tuple[str, str] | None, ...]  # (N+1,) that pair's owners, None without one
     metrics: Metrics[float]
     success: bool
     message: str
@@ -472,8 +516,8 @@ def run_plan(setup: PlanSetup, inverse: Inverse) -> PlanResult:
     args = setup.kernel_args(inverse, kernel_param_rows(inverse, 1)[0], record=True)
     plan_kernels.simulate(*args, True, trace, dyn, raw[0])
     metrics = setup.metrics(raw).item(0)
-    success, message = _verdict(metrics, options, model)
-    q, qd, base_p, base_A, ee_p, ee_A, sv, det, damping, pos_err, att_err = trace
+    success, message = _verdict(metrics, options, model, setup.geometry)
+    q, qd, base_p, base_A, ee_p, ee_A, sv, det, damping, pos_err, att_err, clearance, clearance_pair = trace
     if not success:
         where = _where(
             samples.t,
@@ -512,6 +556,8 @@ def run_plan(setup: PlanSetup, inverse: Inverse) -> PlanResult:
         joint_torques=tau,
         mount_force=force,
         mount_torque=torque,
+        clearance=clearance,
+        clearance_pair=tuple(setup.geometry.pair_names(int(p)) if p >= 0 else None for p in clearance_pair),
         metrics=metrics,
         success=success,
         message=message,
@@ -658,5 +704,5 @@ def verdicts(raw: FloatArray, setups: Sequence[PlanSetup]) -> list[tuple[Metrics
     out = []
     for row, setup in zip(raw, setups, strict=True):
         metrics = setup.metrics(row[None]).item(0)
-        out.append((metrics, *_verdict(metrics, setup.options, setup.model)))
+        out.append((metrics, *_verdict(metrics, setup.options, setup.model, setup.geometry)))
     return out

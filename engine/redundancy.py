@@ -9,6 +9,9 @@ inverse whatever the objective asks.
   antennas that point from it, still).
 - ``joint_centering`` (``gain`` in 1/s): null-space rates ``-gain (q - q_c)`` pulling each joint
   towards the middle of its position limits (its start value when it has none).
+- ``clearance`` (``gain`` in 1/s): null-space rates pushing apart every pair of shapes closer
+  than the scene's influence distance (each pair's distance raised at ``gain`` times its
+  shortfall, :mod:`engine.geometry`); it needs collision geometry.
 """
 
 from __future__ import annotations
@@ -64,7 +67,22 @@ class JointCentering:
             )
 
 
-SECONDARY_OBJECTIVES: dict[str, type] = {cls.name: cls for cls in (MinBaseRotation, JointCentering)}
+@dataclass(frozen=True)
+class Clearance:
+    """Push close pairs of shapes apart in the null space; ``gain`` in 1/s."""
+
+    name: ClassVar[str] = "clearance"
+    objective_id: ClassVar[int] = redundancy_kernels.CLEARANCE
+    gain: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.gain) and 0.0 <= self.gain <= MAX_CENTERING_GAIN):
+            raise ParameterError(
+                "secondary.gain", f"must be in [0, {MAX_CENTERING_GAIN:g}] 1/s for {self.name}, got {self.gain!r}"
+            )
+
+
+SECONDARY_OBJECTIVES: dict[str, type] = {cls.name: cls for cls in (MinBaseRotation, JointCentering, Clearance)}
 
 
 def make_secondary(name: str, gain: float | None = None) -> SecondaryObjective:

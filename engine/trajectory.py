@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, Literal, NamedTuple
 
@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from engine.errors import ParameterError
+from engine.geometry import Scene
 from engine.kinematics import as_state, forward_kinematics
 from engine.model import RobotModel, table1_robot
 from engine.paths import PROFILES, LinePath, Path, Profile, make_path
@@ -99,7 +100,9 @@ class CartesianTask:
     ``tracks`` says what the planner follows: the whole ``"pose"`` (needs 6 joints or more) or
     the ``"position"`` only (3 or more; the attitude path is then reported, not tracked).
     ``joint_speed_limit`` (rad/s) applies to revolute joints, ``linear_joint_speed_limit``
-    (m/s, unlimited by default) to prismatic ones."""
+    (m/s, unlimited by default) to prismatic ones. ``scene`` holds the obstacles (world frame)
+    and the clearance the plan keeps from them, from the carrier and between links
+    (:mod:`engine.geometry`; checked when the robot or the scene has collision shapes)."""
 
     q0: FloatArray  # (n,) rad
     path: Path
@@ -107,6 +110,7 @@ class CartesianTask:
     joint_speed_limit: float = math.radians(6.0)  # rad/s, symmetric
     tracks: Tracks = "pose"
     linear_joint_speed_limit: float = math.inf  # m/s, symmetric
+    scene: Scene = field(default_factory=Scene)
 
     def __post_init__(self) -> None:
         q0 = np.array(self.q0, dtype=float).reshape(-1)

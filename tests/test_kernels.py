@@ -231,6 +231,7 @@ def test_kernel_stops_at_a_non_finite_twist(robot, task):
         task.q0.copy(),
         np.full(6, task.joint_speed_limit),
         True,
+        (np.zeros((0, 19)), np.zeros((1, 3)), np.zeros((0, 2), dtype=np.int64), np.array([0.0, 0.1, 0.5])),  # no geometry
         False,
         trace,
         dynamics_kernels.trajectory_buffers(task.n_steps + 1, 6, 1),

@@ -127,6 +127,7 @@ def test_objective_aggregations_and_penalty():
         joint_speed_limit_respected=np.array([True]),
         position_limits_respected=np.array([True]),
         joint_torque_limit_respected=np.array([True]),
+        clearance_respected=np.array([True]),
         tracks="pose",
     )
     assert objective(m, Objective((0.5, 0.5), "max", "angle"))[0] == pytest.approx(0.007)
@@ -144,6 +145,9 @@ def test_objective_aggregations_and_penalty():
     m.joint_torque_limit_respected = np.array([False])  # P_l counts the torque limits too
     assert math.isinf(objective(m, Objective())[0])
     m.joint_torque_limit_respected = np.array([True])
+    m.clearance_respected = np.array([False])  # and the clearance
+    assert math.isinf(objective(m, Objective())[0])
+    m.clearance_respected = np.array([True])
     m.joint_speed_limit_respected = np.array([False])
     assert math.isinf(objective(m, Objective())[0])
     with pytest.raises(ValueError, match="aggregation"):

@@ -26,6 +26,18 @@ The ``bounded`` inverse (:func:`bound_rates`) holds each step's joint rates in t
 speed limits and of the position limits one step ahead, by the exact QP of
 :mod:`engine.kernels.qp` when the damped least-squares rates leave it.
 
+Clearance (``geo``: shapes, hull vertices, pairs and the scene's settings of
+:mod:`engine.kernels.geometry`; no pairs: nothing is checked). At every sample each pair's
+distance (GJK, or the bounding spheres' lower bound for pairs too far to matter); between
+samples the distance of a pair can shrink at most at its speed bound (the speeds of its shapes'
+points under the step's joint rates and the carrier's reaction, at the interval's ends), so
+``(d_k + d_{k+1} - v dt) / 2`` bounds it from below on the interval; where that bound is below
+the clearance the interval is bisected (the planner's own joint line and Magnus base step to
+each midpoint) down to 1/64 of a step, and a bound still below it there counts as a contact.
+The ``bounded`` inverse adds a velocity damper per pair closer than the influence distance
+(:func:`engine.kernels.geometry.avoidance_rows`) to its QP; the ``clearance`` secondary
+objective pushes close pairs apart in the null space.
+
 Dynamics (``dynamics`` set): the executed trajectory's joint torques and mount wrench
 (:func:`engine.kernels.dynamics.trajectory_dynamics`) after the loop, for every sample (a plan
 that keeps its trace) or for their peaks only (metrics-only evaluation, whose joint samples are
@@ -39,11 +51,29 @@ import numpy as np
 
 from engine.kernels.chain import LOWER, SLIDE, UPPER, angular_map, gjm, gjm_buffers, kinematics, kinematics_buffers
 from engine.kernels.dynamics import trajectory_buffers, trajectory_dynamics
+from engine.kernels.geometry import (
+    HIT_D,
+    HIT_PAIR,
+    MIN_D,
+    MIN_PAIR,
+    T_HIT,
+    T_MIN_D,
+    avoidance_rows,
+    clearance_buffers,
+    clearance_push,
+    note_distance,
+    pair_speeds,
+    pose_one,
+    reset_stats,
+    sample_distances,
+    shape_distance,
+    shape_speed,
+)
 from engine.kernels.inverse import BOUNDED, apply_inverse
 from engine.kernels.jit import kernel
 from engine.kernels.linalg import det3, det6
 from engine.kernels.qp import INVALID, V_QD, dls_qp, qp_buffers
-from engine.kernels.redundancy import NONE, null_space_step
+from engine.kernels.redundancy import CLEARANCE, NONE, null_space_step
 from engine.kernels.so3 import exp_so3, log_so3, rotation_angle
 from engine.kernels.svd import jacobi_svd, svd_buffers
 
@@ -65,7 +95,11 @@ LIMIT_JOINT, T_LIMIT, LIMIT_EXCESS = 19, 20, 21
 BASE_ROT_MAX, BASE_ROT_FINAL = 22, 23
 MAX_TORQUE, MAX_TORQUE_JOINT, MAX_FORCE, MAX_FORCE_JOINT = 24, 25, 26, 27
 EFFORT_JOINT, T_EFFORT, EFFORT_PEAK, DYNAMICS = 28, 29, 30, 31
-N_METRICS = 32
+MIN_CLEARANCE, T_MIN_CLEARANCE, CLEARANCE_PAIR = 32, 33, 34
+COLLISION_PAIR, T_COLLISION, COLLISION_DISTANCE, GEOMETRY = 35, 36, 37, 38
+N_METRICS = 39
+#: Bisections of a step, at most, in the clearance check between samples (1/64 of a step).
+MAX_BISECTIONS = 6
 
 #: A position limit's rate bound is shrunk by this factor so that ``q + qd dt`` (two roundings)
 #: cannot pass the limit: rounding is monotone, so ``fl(q + fl(qd dt))`` stays on the limit's
@@ -203,16 +237,17 @@ def rate_box(ch, q, dt, speed_limit, lo, hi):
 
 
 @kernel
-def bound_rates(ch, q, dt, speed_limit, U, s, V, damping, lam, xdot, qd, shift, box, qp_buf, no_rows):
+def bound_rates(ch, q, dt, speed_limit, U, s, V, damping, lam, xdot, qd, shift, box, qp_buf, C, d, m_rows, d_shifted):
     """The ``bounded`` inverse's step: ``qd (n,)`` holds the damped least-squares rates (plus
     the null-space motion ``shift (n,)`` of a secondary objective, zero without one). If they
-    leave the box of :func:`rate_box`, replace them by the exact minimiser of ``|J x - xdot|^2
-    + lam^2 |x - shift|^2`` over the box (the QP of :func:`engine.kernels.qp.dls_qp` on the thin
-    SVD ``U``, ``s``, ``V`` with ``damping (m,)``; ``J shift = 0``, so this is the DLS problem in
-    ``x - shift`` over the shifted box), clipped to the box against rounding: the box holds
-    bitwise. Returns False if the QP found its input invalid (``qd`` is then NaN).
-    ``box (2, n)``, ``qp_buf``: :func:`engine.kernels.qp.qp_buffers` ``(n, 0)``; ``no_rows``
-    ``((0, n), (0,))``."""
+    leave the box of :func:`rate_box` or break one of the first ``m_rows`` rows ``C qd <= d``
+    (the velocity dampers of close pairs), replace them by the exact minimiser of ``|J x -
+    xdot|^2 + lam^2 |x - shift|^2`` subject to both (the QP of
+    :func:`engine.kernels.qp.dls_qp` on the thin SVD ``U``, ``s``, ``V`` with ``damping (m,)``;
+    ``J shift = 0``, so this is the DLS problem in ``x - shift`` over the shifted box and rows),
+    clipped to the box against rounding: the box holds bitwise. Returns False if the QP found
+    its input invalid (``qd`` is then NaN). ``box (2, n)``, ``qp_buf``:
+    :func:`engine.kernels.qp.qp_buffers` ``(n, >= m_rows)``, ``d_shifted (>= m_rows,)`` scratch."""
     n = q.shape[0]
     lo = box[0]
     hi = box[1]
@@ -221,17 +256,119 @@ def bound_rates(ch, q, dt, speed_limit, U, s, V, damping, lam, xdot, qd, shift, 
     for j in range(n):
         if not (lo[j] <= qd[j] <= hi[j]):
             inside = False
+    for r in range(m_rows):
+        acc = 0.0
+        for j in range(n):
+            acc += C[r, j] * qd[j]
+        if not acc <= d[r]:
+            inside = False
     if inside:
         return True
     for j in range(n):
         lo[j] -= shift[j]
         hi[j] -= shift[j]
-    status, _ = dls_qp(U, s, V, damping, lam, xdot, lo, hi, no_rows[0], no_rows[1], 0, qp_buf)
+    for r in range(m_rows):
+        acc = d[r]
+        for j in range(n):
+            acc -= C[r, j] * shift[j]
+        d_shifted[r] = acc
+    status, _ = dls_qp(U, s, V, damping, lam, xdot, lo, hi, C[:m_rows], d_shifted[:m_rows], 0, qp_buf)
     rate_box(ch, q, dt, speed_limit, lo, hi)
     solution = qp_buf[2][V_QD]
     for j in range(n):
         qd[j] = min(max(solution[j] + shift[j], lo[j]), hi[j])
     return status != INVALID
+
+
+@kernel
+def clearance_work(ch, n):
+    """Scratch of :func:`distance_at`: kinematics and GJM buffers (twice), ``q_s (n,)``, the
+    advance buffers, ``A_s (3, 3)``, and ``slide (n,)`` (1.0 for a prismatic joint)."""
+    slide = np.empty(n)
+    for j in range(n):
+        slide[j] = ch.joints[j, SLIDE]
+    return (
+        kinematics_buffers(n),
+        gjm_buffers(n),
+        kinematics_buffers(n),
+        gjm_buffers(n),
+        np.empty(n),
+        advance_buffers(n),
+        np.empty((3, 3)),
+        slide,
+    )
+
+
+@kernel
+def distance_at(ch, shapes, vertices, a, b, q0, qd, A0, com_w, s, cbuf, work):
+    """The distance of shapes ``a`` and ``b`` at ``s`` s into a step that starts at joints
+    ``q0`` and base attitude ``A0`` with rates ``qd`` (the planner's joint line and Magnus base
+    step, :func:`advance`), and the bound of its rate of change there. Uses ``cbuf``'s pair
+    buffers."""
+    kin, g, kin_m, g_m, q_s, adv, A_s, slide = work
+    posed2, witness2, gjk = cbuf[10], cbuf[11], cbuf[8]
+    eye = adv[7]
+    zero = adv[8]
+    kinematics(ch, q0, eye, zero, True, kin)
+    gjm(ch, kin, g)
+    for r in range(3):
+        for c in range(3):
+            A_s[r, c] = A0[r, c]
+    if s > 0.0:
+        advance(ch, q0, qd, s, A_s, kin, g, kin_m, g_m, q_s, adv)  # kin and g now of q0 + s qd
+    pose_one(shapes[a], kin[0], kin[1], A_s, com_w, posed2[0])
+    pose_one(shapes[b], kin[0], kin[1], A_s, com_w, posed2[1])
+    d = shape_distance(posed2[0], posed2[1], vertices, gjk, witness2)
+    speed = shape_speed(posed2[0], slide, kin, g[1], qd) + shape_speed(posed2[1], slide, kin, g[1], qd)
+    return d, speed
+
+
+@kernel
+def check_interval(ch, shapes, vertices, a, b, pair, t0, dt, q0, qd, A0, com_w, d0, d1, speed, clearance, cbuf, work):
+    """Whether pair ``pair`` (shapes ``a``, ``b``) stays at least ``clearance`` apart over the
+    step ``[t0, t0 + dt]`` whose ends are ``d0`` and ``d1`` apart (exact, or lower bounds) and
+    whose distance changes at most at ``speed`` m/s: bisected where the Lipschitz bound cannot
+    tell, down to 1/2^MAX_BISECTIONS of the step. Distances found go into the stats (the
+    smallest, and the first below the clearance; a bound below it at the finest level counts as
+    a contact at that sub-interval's middle)."""
+    stats, stack = cbuf[9], cbuf[12]
+    if 0.5 * (d0 + d1 - speed * dt) >= clearance:
+        return
+    stack[0, 0] = 0.0
+    stack[0, 1] = dt
+    stack[0, 2] = d0
+    stack[0, 3] = d1
+    stack[0, 4] = speed
+    stack[0, 5] = 0.0
+    top = 1
+    while top > 0:
+        top -= 1
+        s0 = stack[top, 0]
+        s1 = stack[top, 1]
+        da = stack[top, 2]
+        db = stack[top, 3]
+        v = stack[top, 4]
+        depth = stack[top, 5]
+        bound = 0.5 * (da + db - v * (s1 - s0))
+        if bound >= clearance:
+            continue
+        sm = 0.5 * (s0 + s1)
+        if depth >= MAX_BISECTIONS:
+            note_distance(stats, bound, t0 + sm, pair, clearance)
+            return
+        dm, vm = distance_at(ch, shapes, vertices, a, b, q0, qd, A0, com_w, sm, cbuf, work)
+        note_distance(stats, dm, t0 + sm, pair, clearance)
+        if dm < clearance:
+            return
+        v = max(v, vm)
+        for half in range(2):
+            stack[top, 0] = s0 if half == 0 else sm
+            stack[top, 1] = sm if half == 0 else s1
+            stack[top, 2] = da if half == 0 else dm
+            stack[top, 3] = dm if half == 0 else db
+            stack[top, 4] = v
+            stack[top, 5] = depth + 1.0
+            top += 1
 
 
 @kernel
@@ -251,6 +388,7 @@ def simulate(
     centre,
     speed_limit,
     dynamics,
+    geo,
     record,
     trace,
     dyn,
@@ -260,17 +398,20 @@ def simulate(
     ``A_des (N+1, 3, 3)`` desired poses (world); ``gain`` the pose feedback gain (1/s);
     ``rows`` = 6 tracks the pose, 3 the position only; ``objective``, ``objective_gain`` and
     ``centre (n,)`` the secondary objective (:mod:`engine.kernels.redundancy`);
-    ``speed_limit (n,)`` each joint's speed limit (rad/s or m/s; the ``bounded`` inverse's box).
+    ``speed_limit (n,)`` each joint's speed limit (rad/s or m/s; the ``bounded`` inverse's box);
+    ``geo`` the collision geometry ``(shapes, vertices, pairs, (clearance, influence distance,
+    avoidance gain))`` (no pairs: none).
 
     ``metrics (N_METRICS,)`` is always written. With ``record``, ``trace`` (a tuple of
     ``q (N+1, n)``, ``qd``, ``base_p (N+1, 3)``, ``base_A (N+1, 3, 3)``, ``ee_p``, ``ee_A``,
-    ``sv (N+1, m)``, ``det (N+1,)``, ``damping (N+1, m)``, ``pos_err (N+1,)``, ``att_err``)
+    ``sv (N+1, m)``, ``det (N+1,)``, ``damping (N+1, m)``, ``pos_err (N+1,)``, ``att_err``,
+    ``clearance (N+1,)`` the smallest distance of any pair, ``clearance_pair (N+1,)`` its pair)
     receives every sample; samples after a divergence are NaN. With ``dynamics``, ``dyn``
     (:func:`engine.kernels.dynamics.trajectory_buffers` of ``N+1`` samples, with ``N+1`` rows
     when ``record``, else 1) receives the executed trajectory's accelerations, torques and mount
     wrench of a finite plan (NaN otherwise), and their peaks go into ``metrics``.
     """
-    tr_q, tr_qd, tr_bp, tr_bA, tr_ep, tr_eA, tr_sv, tr_det, tr_damp, tr_perr, tr_aerr = trace
+    tr_q, tr_qd, tr_bp, tr_bA, tr_ep, tr_eA, tr_sv, tr_det, tr_damp, tr_perr, tr_aerr, tr_clear, tr_cpair = trace
     dyn_q = dyn[1]
     n = q0.shape[0]
     m = min(rows, n)
@@ -303,8 +444,26 @@ def simulate(
     bounded = method == BOUNDED
     shift = np.zeros(n)
     box = np.empty((2, n))
-    qp_buf = qp_buffers(n, 0)
-    no_rows = (np.empty((0, n)), np.empty(0))
+    shapes, vertices, pairs, geo_set = geo
+    n_pairs = pairs.shape[0]
+    checking = n_pairs > 0
+    clearance = geo_set[0]
+    influence = geo_set[1]
+    avoid_gain = geo_set[2]
+    avoid_rows = checking and bounded
+    avoid_null = checking and redundant and objective == CLEARANCE
+    cbuf = clearance_buffers(n, shapes.shape[0], n_pairs)
+    cwork = clearance_work(ch, n)
+    slide = cwork[7]
+    stats = cbuf[9]
+    reset_stats(stats)
+    cbuf[5][:] = 0.0
+    speed_now = np.empty(n_pairs)
+    q_prev = np.empty(n)
+    qd_prev = np.empty(n)
+    A_prev = np.empty((3, 3))
+    m_rows = 0
+    qp_buf = qp_buffers(n, n_pairs)
 
     kinematics(ch, q, eye, zero, True, kin)
     gjm(ch, kin, g)
@@ -377,6 +536,47 @@ def simulate(
                     t_limit = t_k
                 if j == limit_joint:
                     limit_excess = max(limit_excess, excess)
+        if checking:
+            # exact distances for every pair when the trace is kept; else for those that may be
+            # the smallest, constrain the step, or need the check between samples
+            cutoff = np.inf if record else max(stats[MIN_D], influence if (avoid_rows or avoid_null) else -np.inf)
+            best, best_pair = sample_distances(
+                shapes, vertices, pairs, kin[0], kin[1], A0, com_w, cutoff, clearance, dt if k > 0 else 0.0, cbuf
+            )
+            if record:
+                tr_clear[k] = best
+                tr_cpair[k] = best_pair
+            dist, exact = cbuf[1], cbuf[2]
+            for p in range(n_pairs):
+                if exact[p] != 0.0:
+                    note_distance(stats, dist[p], t_k, p, clearance)
+            if k > 0:  # the step that just ended, between samples
+                pair_speeds(cbuf[0], pairs, slide, kin, g[1], qd_prev, speed_now)
+                prev_dist, prev_speed = cbuf[4], cbuf[5]
+                for p in range(n_pairs):
+                    if prev_dist[p] >= clearance and dist[p] >= clearance:
+                        check_interval(
+                            ch,
+                            shapes,
+                            vertices,
+                            pairs[p, 0],
+                            pairs[p, 1],
+                            p,
+                            t_k - dt,
+                            dt,
+                            q_prev,
+                            qd_prev,
+                            A_prev,
+                            com_w,
+                            prev_dist[p],
+                            dist[p],
+                            max(prev_speed[p], speed_now[p]),
+                            clearance,
+                            cbuf,
+                            cwork,
+                        )
+            if avoid_rows:
+                m_rows = avoidance_rows(cbuf[0], pairs, cbuf, slide, kin, g[1], influence, clearance, avoid_gain, dt)
         for r in range(3):
             xdot_b[r] = A0[0, r] * xdot_w[0] + A0[1, r] * xdot_w[1] + A0[2, r] * xdot_w[2]
             xdot_b[r + 3] = A0[0, r] * xdot_w[3] + A0[1, r] * xdot_w[4] + A0[2, r] * xdot_w[5]
@@ -388,13 +588,34 @@ def simulate(
                 if bounded:
                     for j in range(n):
                         shift[j] = qd[j]
+                if avoid_null:
+                    clearance_push(cbuf[0], pairs, cbuf, slide, kin, g[1], influence, objective_gain, null_work[3])
+                elif objective == CLEARANCE:
+                    null_work[3][:] = 0.0  # no geometry: nothing to push apart
                 _secondary(objective, objective_gain, sv, g, q, centre, qd, null_work)
                 if bounded:
                     for j in range(n):
                         shift[j] = qd[j] - shift[j]
             if bounded:
                 ok = bound_rates(
-                    ch, q, dt, speed_limit, sv[1], s, sv[3], damping, params[0], xdot_b, qd, shift, box, qp_buf, no_rows
+                    ch,
+                    q,
+                    dt,
+                    speed_limit,
+                    sv[1],
+                    s,
+                    sv[3],
+                    damping,
+                    params[0],
+                    xdot_b,
+                    qd,
+                    shift,
+                    box,
+                    qp_buf,
+                    cbuf[6],
+                    cbuf[7],
+                    m_rows,
+                    speed_now,
                 )
             for j in range(n):
                 if not np.isfinite(qd[j]):
@@ -442,6 +663,16 @@ def simulate(
             break
         if k == N:
             break
+        if checking:  # what the check of the coming step needs from its start
+            pair_speeds(cbuf[0], pairs, slide, kin, g[1], qd, cbuf[5])
+            for p in range(n_pairs):
+                cbuf[4][p] = cbuf[1][p]
+            for j in range(n):
+                q_prev[j] = q[j]
+                qd_prev[j] = qd[j]
+            for r in range(3):
+                for c in range(3):
+                    A_prev[r, c] = A0[r, c]
         # Joints: the paper's explicit update. Base attitude: Magnus along the joint line.
         advance(ch, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work)
         for j in range(n):
@@ -461,6 +692,8 @@ def simulate(
             tr_damp[k] = np.nan
             tr_perr[k] = np.nan
             tr_aerr[k] = np.nan
+            tr_clear[k] = np.nan
+            tr_cpair[k] = -1.0
     count = N + 1
     if finite:
         metrics[POS_MAX] = pos_max
@@ -500,6 +733,13 @@ def simulate(
     metrics[LIMIT_JOINT] = limit_joint
     metrics[T_LIMIT] = t_limit
     metrics[LIMIT_EXCESS] = limit_excess if limit_joint >= 0 else np.nan
+    metrics[MIN_CLEARANCE] = stats[MIN_D] if checking else np.nan
+    metrics[T_MIN_CLEARANCE] = stats[T_MIN_D]
+    metrics[CLEARANCE_PAIR] = stats[MIN_PAIR]
+    metrics[COLLISION_PAIR] = stats[HIT_PAIR]
+    metrics[T_COLLISION] = stats[T_HIT]
+    metrics[COLLISION_DISTANCE] = stats[HIT_D]
+    metrics[GEOMETRY] = 1.0 if checking else 0.0
     _dynamics_metrics(ch, dt, N, finite and dynamics, qd, dyn, record, metrics)
 
 
@@ -551,6 +791,8 @@ def empty_trace(n, rows=6):
         np.empty((0, m)),
         np.empty(0),
         np.empty(0),
+        np.empty(0),
+        np.empty(0),
     )
 
 
@@ -571,6 +813,7 @@ def evaluate_range(
     centre,
     speed_limit,
     dynamics,
+    geo,
     start,
     stop,
     out,
@@ -599,6 +842,7 @@ def evaluate_range(
             centre,
             speed_limit,
             dynamics,
+            geo,
             False,
             trace,
             dyn,

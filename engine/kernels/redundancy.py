@@ -14,6 +14,9 @@ applied to the primary rates ``qd_p``). Objectives, chosen by number:
 - ``JOINT_CENTERING`` (gain ``k`` in 1/s): ``qd = qd_p + N z`` with ``z = -k (q - q_c)``, which
   pulls each joint towards ``q_c`` (the middle of its limits; its start value when unlimited)
   without disturbing the end effector (Liegeois 1977).
+- ``CLEARANCE`` (gain ``k`` in 1/s): ``qd = qd_p + N z`` with ``z`` the rates that raise each
+  close pair's distance at ``k`` times its shortfall from the influence distance
+  (:func:`engine.kernels.geometry.clearance_push`, computed by the planner).
 """
 
 from __future__ import annotations
@@ -21,8 +24,26 @@ from __future__ import annotations
 from engine.kernels.jit import kernel
 from engine.kernels.linalg import solve3_spd
 
-NONE, MIN_BASE_ROTATION, JOINT_CENTERING = 0, 1, 2
+NONE, MIN_BASE_ROTATION, JOINT_CENTERING, CLEARANCE = 0, 1, 2, 3
 NULL_SPACE_DAMPING = 1e-3  # dimensionless (rad/s of the carrier per rad/s of the joints)
+
+
+@kernel
+def add_null_motion(V, z, t, qd):
+    """``qd += (I - V V^T) z``: the part of ``z (n,)`` the tracked Jacobian does not see
+    (``V (n, m)`` its right singular vectors; ``t (>= m,)`` scratch)."""
+    n = V.shape[0]
+    m = V.shape[1]
+    for i in range(m):
+        acc = 0.0
+        for j in range(n):
+            acc += V[j, i] * z[j]
+        t[i] = acc
+    for j in range(n):
+        acc = z[j]
+        for i in range(m):
+            acc -= V[j, i] * t[i]
+        qd[j] += acc
 
 
 @kernel
@@ -30,8 +51,9 @@ def null_space_step(objective, gain, V, Omega, q, centre, qd, work):
     """Add the secondary objective's null-space motion to ``qd (n,)`` in place. ``V (n, m)``
     the right singular vectors of the tracked Jacobian, ``Omega (3, n)`` the carrier's angular
     velocity per joint rate (any fixed axes), ``q (n,)`` and ``centre (n,)`` joint positions.
-    ``work``: ``(P (3, n), OV (3, 6), t (6,), z (n,), G (3, 3), w (3,), y (3,))``. Nothing
-    happens when ``n <= m`` (no null space) or for ``NONE``."""
+    ``work``: ``(P (3, n), OV (3, 6), t (6,), z (n,), G (3, 3), w (3,), y (3,))``; for
+    ``CLEARANCE`` its ``z`` holds the rates to project on entry. Nothing happens when ``n <= m``
+    (no null space) or for ``NONE``."""
     n = V.shape[0]
     m = V.shape[1]
     if objective == NONE or n <= m:
@@ -40,16 +62,10 @@ def null_space_step(objective, gain, V, Omega, q, centre, qd, work):
     if objective == JOINT_CENTERING:
         for j in range(n):
             z[j] = -gain * (q[j] - centre[j])
-        for i in range(m):
-            acc = 0.0
-            for j in range(n):
-                acc += V[j, i] * z[j]
-            t[i] = acc
-        for j in range(n):
-            acc = z[j]
-            for i in range(m):
-                acc -= V[j, i] * t[i]
-            qd[j] += acc
+        add_null_motion(V, z, t, qd)
+        return
+    if objective == CLEARANCE:  # the planner left the rates in ``z``
+        add_null_motion(V, z, t, qd)
         return
     # MIN_BASE_ROTATION: P = Omega - (Omega V) V^T, G = P P^T + delta^2 I, y = G^-1 Omega qd_p
     for r in range(3):

@@ -147,6 +147,7 @@ def _metric_field(spec: MetricSpec) -> tuple[Any, Any]:
         "number": float | None,
         "bool": bool if spec.api_default is REQUIRED else bool | None,
         "joint": int | None,
+        "pair": list[str] | None,
         "attitude_term": AttitudeTermName,
         "tracks": TrackedQuantity,
     }
@@ -177,6 +178,8 @@ def _api_value(spec: MetricSpec, value: Any) -> Any:
         return int(value) + 1 if value is not None and value >= 0 else None
     if isinstance(value, bool | np.bool_):
         return bool(value)
+    if isinstance(value, tuple):  # a pair of names
+        return list(value)
     if isinstance(value, float | np.floating):
         return float(value) if math.isfinite(value) else None
     return value

@@ -15,6 +15,7 @@ from pydantic_core import CoreSchema
 
 from engine import GJMResult, RobotModel, State
 from engine.errors import ParameterError
+from engine.geometry import MAX_SHAPES
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.trajectory import PAPER_Q0_DEG
 from engine.urdf import MAX_URDF_BYTES, UrdfError, urdf_element, urdf_to_dict
@@ -39,8 +40,21 @@ from service.schemas.common import (
     dotted_path,
     joint_positions,
 )
+from service.schemas.geometry import BodyShapeIn, Size, Size3
 
 # --- robots -------------------------------------------------------------------------------
+
+
+class CollisionBox(Input):
+    """The carrier's collision box, its edges along the carrier's axes."""
+
+    size_m: Size3 = Field(description="edge lengths along the carrier's x, y and z axes, m")
+    center_m: Vec3 | None = Field(
+        default=None, description="the box's centre from the carrier's CoM, carrier frame, m (default 0)"
+    )
+
+
+SHAPES_FRAME = "positions and attitudes in the {body} frame, positions from its CoM"
 
 
 class BaseParams(Input):
@@ -48,6 +62,12 @@ class BaseParams(Input):
     mass: Mass
     inertia: Inertia = Field(description="kg m^2 about the base CoM, base frame")
     b: Vec3 = Field(description="m, base CoM to joint 1, base frame")
+    collision_box: CollisionBox | None = Field(default=None, description="the carrier's collision box (null: none)")
+    collision_shapes: list[BodyShapeIn] | None = Field(
+        default=None,
+        max_length=MAX_SHAPES,
+        description=f"more collision shapes of the carrier, {SHAPES_FRAME.format(body='carrier')}",
+    )
 
 
 class JointLimits(Input):
@@ -76,6 +96,14 @@ class LinkParams(Input):
     )
     force_limit_n: EffortLimit | None = Field(
         default=None, description="prismatic joints: the largest |force| the joint may exert, N (> 0; null: none)"
+    )
+    collision_radius_m: Size | None = Field(
+        default=None,
+        description="the link as a capsule of this radius, m, from its joint's origin to the next joint's origin (the "
+        "last link: to the end-effector point; a prismatic link: from where its joint's origin is at q = 0); null: none",
+    )
+    collision_shapes: list[BodyShapeIn] | None = Field(
+        default=None, max_length=MAX_SHAPES, description=f"more collision shapes of the link, {SHAPES_FRAME.format(body='link')}"
     )
 
 

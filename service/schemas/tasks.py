@@ -10,6 +10,8 @@ import numpy as np
 from pydantic import ConfigDict, Field
 
 from engine import CartesianTask, RobotModel
+from engine.bounds import MAX_LENGTH_M
+from engine.errors import ParameterError
 from engine.trajectory import MAX_DURATION_S, MIN_DT_S, start_pose
 from service.schemas.common import (
     MAX_MAGNITUDE,
@@ -25,6 +27,7 @@ from service.schemas.common import (
     field_path,
     joint_positions,
 )
+from service.schemas.geometry import SceneIn
 from service.schemas.methods import MethodIn
 from service.schemas.paths import LinePathIn, PathContext, PathIn, rotation
 
@@ -70,6 +73,15 @@ class TaskIn(Input):
         default=None, gt=0, le=MAX_MAGNITUDE, description="symmetric speed limit of the prismatic joints, m/s (null: none)"
     )
     path: PathIn = Field(default_factory=LinePathIn, description="the path type and its parameters (default: line)")
+    clearance_m: float = Field(
+        default=0.0,
+        ge=0,
+        le=MAX_LENGTH_M,
+        description="the smallest distance allowed between any two shapes that are checked (each link and each "
+        "obstacle, each link and the carrier but link 1, links at least two apart, the carrier and each obstacle), m; "
+        "a plan that comes closer fails, and P_l of B counts it. Checked when the robot has collision shapes",
+    )
+    scene: SceneIn | None = Field(default=None, description="obstacles and avoidance settings (null: no obstacles)")
 
     def to_engine(self, model: RobotModel) -> CartesianTask:
         """The engine's task for ``model``; errors name the engine's fields (:meth:`locate` finds them)."""
@@ -85,6 +97,10 @@ class TaskIn(Input):
             else rotation(self.target_attitude_quaternion, "target_attitude"),
             tracks=self.tracks,
         )
+        try:
+            scene = (self.scene or SceneIn()).to_engine(self.clearance_m)
+        except ParameterError as exc:
+            raise (exc if exc.field == "clearance" else exc.within("scene")) from None
         return CartesianTask(
             q0=q0,
             path=self.path.to_engine(position, attitude, context),
@@ -92,6 +108,7 @@ class TaskIn(Input):
             joint_speed_limit=math.radians(self.joint_speed_limit_deg_s),
             tracks=self.tracks,
             linear_joint_speed_limit=math.inf if self.joint_speed_limit_m_s is None else self.joint_speed_limit_m_s,
+            scene=scene,
         )
 
     def locate(self, field: str | Sequence[str | int]) -> list[str | int]:

@@ -109,5 +109,16 @@ def compute_metrics(
         time_torque_limit_exceeded=np.full(rows.shape, np.nan),
         torque_limit_peak=np.full(rows.shape, np.nan),
         dynamics_computed=np.zeros(rows.shape),
+        min_clearance=np.full(rows.shape, np.nan),  # the oracle plans without geometry
+        min_clearance_pair=np.full(rows.shape, None, dtype=object),
+        time_of_min_clearance=np.full(rows.shape, np.nan),
+        clearance_respected=np.ones(rows.shape, dtype=bool),
+        clearance_broken_pair=np.full(rows.shape, None, dtype=object),
+        time_collision=np.full(rows.shape, np.nan),
+        collision_distance=np.full(rows.shape, np.nan),
+        min_clearance_pair_index=none,
+        collision_pair=none,
+        geometry_checked=np.zeros(rows.shape),
+        clearance=0.0,
         tracks="pose",
     )

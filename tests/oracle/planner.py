@@ -273,6 +273,8 @@ def plan(
         joint_torques=np.full_like(trace.q[0], np.nan),
         mount_force=np.full((trace.t.shape[0], 3), np.nan),
         mount_torque=np.full((trace.t.shape[0], 3), np.nan),
+        clearance=np.full(trace.t.shape[0], np.nan),  # nor geometry
+        clearance_pair=(None,) * trace.t.shape[0],
         metrics=metrics,
         success=success,
         message=message,

@@ -1,0 +1,711 @@
+"""Distances between convex shapes, compiled: the geometry of clearance checks and collision
+avoidance.
+
+A shape is a convex *core* (a point, a segment, a box, a cylinder or the convex hull of a vertex
+list) swept by a sphere of radius ``RADIUS`` (a sphere is a point core, a capsule a segment
+core), rigid in the frame of a body. Shapes are packed as rows of a float array (columns below):
+its body (``WORLD`` for an obstacle, 0 the carrier, ``i`` link ``i``), its kind, its radius, its
+pose in the body frame (position relative to the body's CoM, rotation matrix row-major whose
+columns are the shape's axes), its dimensions and its bounding radius about its position
+(margin included). A posed shape has the same row with the pose in the frame where distances
+are taken (:func:`pose_shape`).
+
+The distance between two cores is computed by the Gilbert-Johnson-Keerthi algorithm on their
+support functions (Gilbert, Johnson and Keerthi 1988; the sub-simplex search by Voronoi regions
+as in Ericson, *Real-Time Collision Detection*, 2005, ch. 5 and 9), the same method coal
+(hpp-fcl) uses: exact for polytopes, segments and points (it ends when the support point adds
+nothing, to a relative ``1e-12`` of the distance), and converging linearly on cylinders. The
+shapes' distance is the cores' distance less both radii, so it is negative when the swept
+spheres overlap; cores that intersect give ``-(r_a + r_b)`` (the depth is not computed: the
+pair is in collision).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.kernels.jit import kernel
+
+# Columns of a shape row.
+BODY, KIND, RADIUS, POS, ROT, DIMS, BOUND = 0, 1, 2, 3, 6, 15, 18
+SHAPE_WIDTH = 19
+# Kinds of core.
+POINT, SEGMENT, BOX, CYLINDER, HULL = 0, 1, 2, 3, 4
+#: The body of an obstacle (fixed in the world).
+WORLD = -1
+
+MAX_ITERATIONS = 128
+RELATIVE_TOLERANCE = 1e-12
+TINY = 1e-300
+
+
+@kernel
+def support(shape, vertices, dx, dy, dz, out):
+    """The point of the posed ``shape``'s core farthest along ``(dx, dy, dz)`` into ``out (3,)``
+    (``vertices (V, 3)``: the hulls' vertices in their shapes' frames)."""
+    kind = int(shape[KIND])
+    cx = shape[POS]
+    cy = shape[POS + 1]
+    cz = shape[POS + 2]
+    if kind == POINT:
+        out[0] = cx
+        out[1] = cy
+        out[2] = cz
+        return
+    # the shape's axes: the columns of its rotation
+    if kind == SEGMENT:
+        ax = shape[ROT + 2]
+        ay = shape[ROT + 5]
+        az = shape[ROT + 8]
+        h = shape[DIMS]
+        if dx * ax + dy * ay + dz * az < 0.0:
+            h = -h
+        out[0] = cx + h * ax
+        out[1] = cy + h * ay
+        out[2] = cz + h * az
+        return
+    if kind == BOX:
+        x = cx
+        y = cy
+        z = cz
+        for i in range(3):
+            ex = shape[ROT + i]
+            ey = shape[ROT + 3 + i]
+            ez = shape[ROT + 6 + i]
+            half = shape[DIMS + i]
+            if dx * ex + dy * ey + dz * ez < 0.0:
+                half = -half
+            x += half * ex
+            y += half * ey
+            z += half * ez
+        out[0] = x
+        out[1] = y
+        out[2] = z
+        return
+    if kind == CYLINDER:
+        ax = shape[ROT + 2]
+        ay = shape[ROT + 5]
+        az = shape[ROT + 8]
+        along = dx * ax + dy * ay + dz * az
+        px = dx - along * ax
+        py = dy - along * ay
+        pz = dz - along * az
+        norm = np.sqrt(px * px + py * py + pz * pz)
+        h = shape[DIMS + 1] if along >= 0.0 else -shape[DIMS + 1]
+        x = cx + h * ax
+        y = cy + h * ay
+        z = cz + h * az
+        if norm > 1e-15 * (abs(dx) + abs(dy) + abs(dz)):
+            rc = shape[DIMS] / norm
+            x += rc * px
+            y += rc * py
+            z += rc * pz
+        out[0] = x
+        out[1] = y
+        out[2] = z
+        return
+    # HULL: the best vertex along the direction in the shape's frame
+    lx = shape[ROT] * dx + shape[ROT + 3] * dy + shape[ROT + 6] * dz
+    ly = shape[ROT + 1] * dx + shape[ROT + 4] * dy + shape[ROT + 7] * dz
+    lz = shape[ROT + 2] * dx + shape[ROT + 5] * dy + shape[ROT + 8] * dz
+    first = int(shape[DIMS])
+    count = int(shape[DIMS + 1])
+    best = first
+    best_dot = -np.inf
+    for k in range(first, first + count):
+        dot = vertices[k, 0] * lx + vertices[k, 1] * ly + vertices[k, 2] * lz
+        if dot > best_dot:
+            best_dot = dot
+            best = k
+    vx = vertices[best, 0]
+    vy = vertices[best, 1]
+    vz = vertices[best, 2]
+    out[0] = cx + shape[ROT] * vx + shape[ROT + 1] * vy + shape[ROT + 2] * vz
+    out[1] = cy + shape[ROT + 3] * vx + shape[ROT + 4] * vy + shape[ROT + 5] * vz
+    out[2] = cz + shape[ROT + 6] * vx + shape[ROT + 7] * vy + shape[ROT + 8] * vz
+
+
+@kernel
+def gjk_buffers():
+    """Scratch of :func:`core_distance`: ``(W, A, B (4, 3) simplex points and their shapes'
+    points, lam (4,) barycentric weights, tmp (8, 3))``."""
+    return (np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty(4), np.empty((8, 3)))
+
+
+@kernel
+def _dot(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+@kernel
+def _keep(W, A, B, lam, idx, count):
+    """Keep the simplex points ``idx[:count]`` (in that order) with their weights."""
+    for k in range(count):
+        src = idx[k]
+        if src != k:
+            for r in range(3):
+                W[k, r] = W[src, r]
+                A[k, r] = A[src, r]
+                B[k, r] = B[src, r]
+            lam[k] = lam[src]
+    return count
+
+
+@kernel
+def _segment(W, A, B, lam, i, j, idx):
+    """The point of segment ``W[i] W[j]`` closest to the origin: weights into ``lam[i], lam[j]``
+    and the points kept into ``idx``; returns how many."""
+    ex = W[j, 0] - W[i, 0]
+    ey = W[j, 1] - W[i, 1]
+    ez = W[j, 2] - W[i, 2]
+    ee = ex * ex + ey * ey + ez * ez
+    t = -(W[i, 0] * ex + W[i, 1] * ey + W[i, 2] * ez)
+    if t <= 0.0 or ee <= TINY:
+        lam[i] = 1.0
+        idx[0] = i
+        return 1
+    if t >= ee:
+        lam[j] = 1.0
+        idx[0] = j
+        return 1
+    t /= ee
+    lam[i] = 1.0 - t
+    lam[j] = t
+    idx[0] = i
+    idx[1] = j
+    return 2
+
+
+@kernel
+def _triangle(W, A, B, lam, i, j, k, idx):
+    """The point of triangle ``W[i] W[j] W[k]`` closest to the origin (Ericson 5.1.5, with the
+    origin as the query point): weights into ``lam`` and the points kept into ``idx``."""
+    abx = W[j, 0] - W[i, 0]
+    aby = W[j, 1] - W[i, 1]
+    abz = W[j, 2] - W[i, 2]
+    acx = W[k, 0] - W[i, 0]
+    acy = W[k, 1] - W[i, 1]
+    acz = W[k, 2] - W[i, 2]
+    apx = -W[i, 0]
+    apy = -W[i, 1]
+    apz = -W[i, 2]
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        lam[i] = 1.0
+        idx[0] = i
+        return 1
+    bpx = -W[j, 0]
+    bpy = -W[j, 1]
+    bpz = -W[j, 2]
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0.0 and d4 <= d3:
+        lam[j] = 1.0
+        idx[0] = j
+        return 1
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        t = d1 / (d1 - d3)
+        lam[i] = 1.0 - t
+        lam[j] = t
+        idx[0] = i
+        idx[1] = j
+        return 2
+    cpx = -W[k, 0]
+    cpy = -W[k, 1]
+    cpz = -W[k, 2]
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0.0 and d5 <= d6:
+        lam[k] = 1.0
+        idx[0] = k
+        return 1
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        t = d2 / (d2 - d6)
+        lam[i] = 1.0 - t
+        lam[k] = t
+        idx[0] = i
+        idx[1] = k
+        return 2
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        lam[j] = 1.0 - t
+        lam[k] = t
+        idx[0] = j
+        idx[1] = k
+        return 2
+    denom = va + vb + vc
+    if not denom > TINY:  # degenerate (collinear) triangle: its best edge
+        return _segment(W, A, B, lam, i, j, idx) if d1 * d1 <= d2 * d2 else _segment(W, A, B, lam, i, k, idx)
+    v = vb / denom
+    w = vc / denom
+    lam[i] = 1.0 - v - w
+    lam[j] = v
+    lam[k] = w
+    idx[0] = i
+    idx[1] = j
+    idx[2] = k
+    return 3
+
+
+@kernel
+def _outside(W, i, j, k, opposite):
+    """Whether the origin and ``W[opposite]`` lie on different sides of plane ``W[i] W[j] W[k]``
+    (the origin strictly outside the tetrahedron through that face)."""
+    abx = W[j, 0] - W[i, 0]
+    aby = W[j, 1] - W[i, 1]
+    abz = W[j, 2] - W[i, 2]
+    acx = W[k, 0] - W[i, 0]
+    acy = W[k, 1] - W[i, 1]
+    acz = W[k, 2] - W[i, 2]
+    nx = aby * acz - abz * acy
+    ny = abz * acx - abx * acz
+    nz = abx * acy - aby * acx
+    sign_p = -(W[i, 0] * nx + W[i, 1] * ny + W[i, 2] * nz)
+    sign_d = (W[opposite, 0] - W[i, 0]) * nx + (W[opposite, 1] - W[i, 1]) * ny + (W[opposite, 2] - W[i, 2]) * nz
+    return sign_p * sign_d < 0.0
+
+
+@kernel
+def _closest(W, A, B, lam, count, idx, best_idx, best_lam):
+    """Reduce the simplex ``W[:count]`` to the smallest sub-simplex holding its point closest
+    to the origin, with that point's barycentric weights in ``lam``; returns the new count (0:
+    the origin is inside a tetrahedron)."""
+    for k in range(4):
+        lam[k] = 0.0
+    if count == 1:
+        lam[0] = 1.0
+        return 1
+    if count == 2:
+        kept = _segment(W, A, B, lam, 0, 1, idx)
+        return _keep(W, A, B, lam, idx, kept)
+    if count == 3:
+        kept = _triangle(W, A, B, lam, 0, 1, 2, idx)
+        return _keep(W, A, B, lam, idx, kept)
+    # tetrahedron: the nearest of the faces the origin is outside of
+    best = np.inf
+    best_count = 0
+    for face in range(4):  # the face opposite vertex ``face``
+        i = 1 if face == 0 else 0
+        j = 1 if face == 2 or face == 3 else 2
+        k = 2 if face == 3 else 3
+        if face == 1:
+            j = 2
+        if not _outside(W, i, j, k, face):
+            continue
+        for m in range(4):
+            lam[m] = 0.0
+        kept = _triangle(W, A, B, lam, i, j, k, idx)
+        px = 0.0
+        py = 0.0
+        pz = 0.0
+        for m in range(kept):
+            px += lam[idx[m]] * W[idx[m], 0]
+            py += lam[idx[m]] * W[idx[m], 1]
+            pz += lam[idx[m]] * W[idx[m], 2]
+        dd = px * px + py * py + pz * pz
+        if dd < best:
+            best = dd
+            best_count = kept
+            for m in range(kept):
+                best_idx[m] = idx[m]
+                best_lam[m] = lam[idx[m]]
+    if best_count == 0:
+        return 0
+    for m in range(4):
+        lam[m] = 0.0
+    for m in range(best_count):
+        lam[best_idx[m]] = best_lam[m]
+        idx[m] = best_idx[m]
+    return _keep(W, A, B, lam, idx, best_count)
+
+
+@kernel
+def core_distance(sa, sb, vertices, buf, witness):
+    """The distance between the cores of posed shapes ``sa`` and ``sb`` (0 when they
+    intersect), their closest points into ``witness (2, 3)`` (``sa``'s, then ``sb``'s). ``buf``:
+    :func:`gjk_buffers`."""
+    W, A, B, lam, tmp = buf
+    pa = tmp[0]
+    pb = tmp[1]
+    v = tmp[2]
+    idx = np.empty(4, dtype=np.int64)
+    best_idx = np.empty(4, dtype=np.int64)
+    best_lam = np.empty(4)
+    v[0] = sa[POS] - sb[POS]
+    v[1] = sa[POS + 1] - sb[POS + 1]
+    v[2] = sa[POS + 2] - sb[POS + 2]
+    if v[0] * v[0] + v[1] * v[1] + v[2] * v[2] <= TINY:
+        v[0] = 1.0
+    count = 0
+    vv = np.inf
+    scale = 0.0  # the largest |w|^2 seen: what "the origin is on the simplex" is relative to
+    for _ in range(MAX_ITERATIONS):
+        support(sa, vertices, -v[0], -v[1], -v[2], pa)
+        support(sb, vertices, v[0], v[1], v[2], pb)
+        wx = pa[0] - pb[0]
+        wy = pa[1] - pb[1]
+        wz = pa[2] - pb[2]
+        scale = max(scale, wx * wx + wy * wy + wz * wz)
+        if count > 0:
+            vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+            if vv - (v[0] * wx + v[1] * wy + v[2] * wz) <= RELATIVE_TOLERANCE * vv:
+                break  # the support point brings the distance no closer
+            repeat = False
+            for k in range(count):
+                if W[k, 0] == wx and W[k, 1] == wy and W[k, 2] == wz:
+                    repeat = True
+            if repeat:
+                break
+        W[count, 0] = wx
+        W[count, 1] = wy
+        W[count, 2] = wz
+        for r in range(3):
+            A[count, r] = pa[r]
+            B[count, r] = pb[r]
+        count += 1
+        count = _closest(W, A, B, lam, count, idx, best_idx, best_lam)
+        if count == 0:
+            break  # the origin is inside: the cores intersect
+        nx = 0.0
+        ny = 0.0
+        nz = 0.0
+        for k in range(count):
+            nx += lam[k] * W[k, 0]
+            ny += lam[k] * W[k, 1]
+            nz += lam[k] * W[k, 2]
+        new = nx * nx + ny * ny + nz * nz
+        if count > 1 and not new < vv:
+            break  # no progress (rounding): keep this simplex's point
+        v[0] = nx
+        v[1] = ny
+        v[2] = nz
+        if count == 4 or new <= 1e-24 * scale:
+            count = 0 if count == 4 else count
+            break
+    if count == 0:
+        for r in range(3):
+            witness[0, r] = 0.0
+            witness[1, r] = 0.0
+        for k in range(4):
+            for r in range(3):
+                witness[0, r] += 0.25 * A[k, r]
+                witness[1, r] += 0.25 * B[k, r]
+        return 0.0
+    for r in range(3):
+        acc_a = 0.0
+        acc_b = 0.0
+        for k in range(count):
+            acc_a += lam[k] * A[k, r]
+            acc_b += lam[k] * B[k, r]
+        witness[0, r] = acc_a
+        witness[1, r] = acc_b
+    dx = witness[0, 0] - witness[1, 0]
+    dy = witness[0, 1] - witness[1, 1]
+    dz = witness[0, 2] - witness[1, 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@kernel
+def shape_distance(sa, sb, vertices, buf, witness):
+    """Signed distance between posed shapes ``sa`` and ``sb``: their cores' distance less both
+    radii (negative when the swept spheres overlap; ``-(r_a + r_b)`` when the cores intersect).
+    ``witness (2, 3)`` receives the closest points of the cores."""
+    return core_distance(sa, sb, vertices, buf, witness) - sa[RADIUS] - sb[RADIUS]
+
+
+@kernel
+def pose_shape(shape, R, p, out):
+    """``out``: ``shape`` posed by the rigid transform ``x -> R x + p`` of its body's frame
+    (``R (3, 3)``, ``p (3,)`` the body CoM)."""
+    for c in range(SHAPE_WIDTH):
+        out[c] = shape[c]
+    for r in range(3):
+        out[POS + r] = p[r] + R[r, 0] * shape[POS] + R[r, 1] * shape[POS + 1] + R[r, 2] * shape[POS + 2]
+        for c in range(3):
+            out[ROT + 3 * r + c] = R[r, 0] * shape[ROT + c] + R[r, 1] * shape[ROT + 3 + c] + R[r, 2] * shape[ROT + 6 + c]
+
+
+@kernel
+def distances_many(shapes_a, shapes_b, vertices, out, witness):
+    """Signed distances of posed shape pairs ``shapes_a[k]``, ``shapes_b[k]`` into ``out (K,)``
+    and their witness points into ``witness (K, 2, 3)`` (for tests and tools)."""
+    buf = gjk_buffers()
+    for k in range(shapes_a.shape[0]):
+        out[k] = shape_distance(shapes_a[k], shapes_b[k], vertices, buf, witness[k])
+
+
+# --- Shapes on a moving robot (the planner's step loop) -------------------------------------
+
+
+@kernel
+def pose_one(shape, att, com, A0, com_w, out):
+    """Pose ``shape`` in the planner's base frame (the carrier's attitude the identity, the
+    system CoM at the origin): a body's shape by its attitude ``att[b]`` and CoM ``com[b]`` (the
+    kinematics buffers), an obstacle's (world pose) by ``x_b = A0^T (x_w - com_w)``."""
+    body = int(shape[BODY])
+    if body != WORLD:
+        pose_shape(shape, att[body], com[body], out)
+        return
+    R = np.empty((3, 3))
+    p = np.empty(3)
+    for r in range(3):
+        acc = 0.0
+        for c in range(3):
+            R[r, c] = A0[c, r]
+            acc -= A0[c, r] * com_w[c]
+        p[r] = acc
+    pose_shape(shape, R, p, out)
+
+
+@kernel
+def pose_all(shapes, att, com, A0, com_w, posed):
+    """:func:`pose_one` for every shape into ``posed (S, SHAPE_WIDTH)``."""
+    for s in range(shapes.shape[0]):
+        pose_one(shapes[s], att, com, A0, com_w, posed[s])
+
+
+@kernel
+def lower_bound(sa, sb):
+    """A lower bound of the distance between posed shapes: their bounding spheres' distance."""
+    dx = sa[POS] - sb[POS]
+    dy = sa[POS + 1] - sb[POS + 1]
+    dz = sa[POS + 2] - sb[POS + 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz) - sa[BOUND] - sb[BOUND]
+
+
+@kernel
+def shape_speed(shape, ch_slide, kin, bm, qd):
+    """A bound (m/s) of the speed of every point of the posed ``shape`` (planner base frame):
+    ``|v_0| + |w_0| (|c - r_0| + R) + sum_j |qd_j| (|c - p_j| + R)`` over the joints that move
+    its body (``|qd_j|`` for a prismatic one), ``c`` its position and ``R`` its bounding
+    radius; 0 for an obstacle. ``bm (6, n)`` the base twist map, ``ch_slide (n,)`` 1.0 for a
+    prismatic joint."""
+    body = int(shape[BODY])
+    if body == WORLD:
+        return 0.0
+    _, com, jpos, _, _, _ = kin
+    n = qd.shape[0]
+    v0x = 0.0
+    v0y = 0.0
+    v0z = 0.0
+    w0x = 0.0
+    w0y = 0.0
+    w0z = 0.0
+    for j in range(n):
+        v0x += bm[0, j] * qd[j]
+        v0y += bm[1, j] * qd[j]
+        v0z += bm[2, j] * qd[j]
+        w0x += bm[3, j] * qd[j]
+        w0y += bm[4, j] * qd[j]
+        w0z += bm[5, j] * qd[j]
+    cx = shape[POS]
+    cy = shape[POS + 1]
+    cz = shape[POS + 2]
+    reach = shape[BOUND]
+    dx = cx - com[0, 0]
+    dy = cy - com[0, 1]
+    dz = cz - com[0, 2]
+    speed = np.sqrt(v0x * v0x + v0y * v0y + v0z * v0z) + np.sqrt(w0x * w0x + w0y * w0y + w0z * w0z) * (
+        np.sqrt(dx * dx + dy * dy + dz * dz) + reach
+    )
+    for j in range(body):  # joint j (0-based) moves bodies j+1 .. n
+        rate = abs(qd[j])
+        if ch_slide[j] != 0.0:
+            speed += rate
+        else:
+            ex = cx - jpos[j, 0]
+            ey = cy - jpos[j, 1]
+            ez = cz - jpos[j, 2]
+            speed += rate * (np.sqrt(ex * ex + ey * ey + ez * ez) + reach)
+    return speed
+
+
+@kernel
+def add_point_row(body, x, nx, ny, nz, sign, ch_slide, kin, bm, row):
+    """``row (n,) += sign * d(n . v_x)/d(qd)``: how the velocity of point ``x (3,)`` fixed to
+    ``body`` (planner base frame), along ``(nx, ny, nz)``, depends on the joint rates (the base's
+    reaction through ``bm`` included); nothing for an obstacle."""
+    if body == WORLD:
+        return
+    _, com, jpos, jaxis, _, _ = kin
+    n = row.shape[0]
+    # n . (v_0 + w_0 x (x - r_0)) = n . v_0 + ((x - r_0) x n) . w_0
+    rx = x[0] - com[0, 0]
+    ry = x[1] - com[0, 1]
+    rz = x[2] - com[0, 2]
+    mx = ry * nz - rz * ny
+    my = rz * nx - rx * nz
+    mz = rx * ny - ry * nx
+    for j in range(n):
+        row[j] += sign * (nx * bm[0, j] + ny * bm[1, j] + nz * bm[2, j] + mx * bm[3, j] + my * bm[4, j] + mz * bm[5, j])
+    for j in range(body):
+        kx = jaxis[j, 0]
+        ky = jaxis[j, 1]
+        kz = jaxis[j, 2]
+        if ch_slide[j] != 0.0:
+            row[j] += sign * (nx * kx + ny * ky + nz * kz)
+        else:
+            ex = x[0] - jpos[j, 0]
+            ey = x[1] - jpos[j, 1]
+            ez = x[2] - jpos[j, 2]
+            # n . (k x e)
+            row[j] += sign * (nx * (ky * ez - kz * ey) + ny * (kz * ex - kx * ez) + nz * (kx * ey - ky * ex))
+
+
+@kernel
+def distance_rate_row(sa, sb, witness, ch_slide, kin, bm, row):
+    """``row (n,)``: the gradient of the distance between posed shapes ``sa`` and ``sb`` with
+    respect to the joint rates, ``d_dot = row . qd``, from their cores' closest points
+    ``witness (2, 3)`` (the normal runs from ``sb``'s point to ``sa``'s). False (and a zero row)
+    when the points coincide (the cores intersect: no normal)."""
+    for j in range(row.shape[0]):
+        row[j] = 0.0
+    dx = witness[0, 0] - witness[1, 0]
+    dy = witness[0, 1] - witness[1, 1]
+    dz = witness[0, 2] - witness[1, 2]
+    norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if not norm > 0.0:
+        return False
+    nx = dx / norm
+    ny = dy / norm
+    nz = dz / norm
+    add_point_row(int(sa[BODY]), witness[0], nx, ny, nz, 1.0, ch_slide, kin, bm, row)
+    add_point_row(int(sb[BODY]), witness[1], nx, ny, nz, -1.0, ch_slide, kin, bm, row)
+    return True
+
+
+@kernel
+def clearance_buffers(n, n_shapes, n_pairs):
+    """Scratch of a plan's clearance checks: ``(posed (S, SHAPE_WIDTH), dist (P,), exact (P,)
+    1.0 where ``dist`` is exact (else a lower bound), witness (P, 2, 3), prev_dist (P,),
+    prev_speed (P,), rows (P, n), rhs (P,), gjk buffers, stats (8,), pair_posed (2,
+    SHAPE_WIDTH), pair_witness (2, 3), stack (64, 6), grad (n,))``."""
+    return (
+        np.empty((n_shapes, SHAPE_WIDTH)),
+        np.empty(n_pairs),
+        np.empty(n_pairs),
+        np.empty((n_pairs, 2, 3)),
+        np.empty(n_pairs),
+        np.empty(n_pairs),
+        np.empty((n_pairs, n)),
+        np.empty(n_pairs),
+        gjk_buffers(),
+        np.empty(8),
+        np.empty((2, SHAPE_WIDTH)),
+        np.empty((2, 3)),
+        np.empty((64, 6)),
+        np.empty(n),
+    )
+
+
+# stats of a plan's clearance (the ``stats`` buffer)
+MIN_D, T_MIN_D, MIN_PAIR, HIT_PAIR, T_HIT, HIT_D = 0, 1, 2, 3, 4, 5
+
+
+@kernel
+def reset_stats(stats):
+    stats[MIN_D] = np.inf
+    stats[T_MIN_D] = np.nan
+    stats[MIN_PAIR] = -1.0
+    stats[HIT_PAIR] = -1.0
+    stats[T_HIT] = np.nan
+    stats[HIT_D] = np.nan
+
+
+@kernel
+def note_distance(stats, d, t, pair, clearance):
+    """Count a distance ``d`` of ``pair`` at time ``t``: the smallest so far, and the first below
+    the clearance."""
+    if d < stats[MIN_D]:
+        stats[MIN_D] = d
+        stats[T_MIN_D] = t
+        stats[MIN_PAIR] = pair
+    if d < clearance and stats[HIT_PAIR] < 0.0:
+        stats[HIT_PAIR] = pair
+        stats[T_HIT] = t
+        stats[HIT_D] = d
+
+
+@kernel
+def sample_distances(shapes, vertices, pairs, att, com, A0, com_w, cutoff, clearance, margin, buf):
+    """Pose every shape and take each pair's distance: exact (GJK) where the bounding spheres'
+    lower bound is below ``cutoff`` or below ``clearance + margin`` times the pair's speed
+    bound of the last step (``prev_speed``: the pairs that the check between samples may need),
+    else that lower bound. Returns the smallest exact distance and its pair (``inf``, -1 when
+    none was exact)."""
+    posed, dist, exact, witness, prev_speed = buf[0], buf[1], buf[2], buf[3], buf[5]
+    gjk = buf[8]
+    pose_all(shapes, att, com, A0, com_w, posed)
+    best = np.inf
+    best_pair = -1
+    for p in range(pairs.shape[0]):
+        a = pairs[p, 0]
+        b = pairs[p, 1]
+        bound = lower_bound(posed[a], posed[b])
+        if bound < cutoff or bound < clearance + margin * prev_speed[p]:
+            d = shape_distance(posed[a], posed[b], vertices, gjk, witness[p])
+            dist[p] = d
+            exact[p] = 1.0
+            if d < best:
+                best = d
+                best_pair = p
+        else:
+            dist[p] = bound
+            exact[p] = 0.0
+    return best, best_pair
+
+
+@kernel
+def pair_speeds(posed, pairs, ch_slide, kin, bm, qd, out):
+    """``out (P,)``: a bound of how fast each pair's distance can change (m/s) with the joint
+    rates ``qd``: the sum of its two shapes' :func:`shape_speed`."""
+    for p in range(pairs.shape[0]):
+        out[p] = shape_speed(posed[pairs[p, 0]], ch_slide, kin, bm, qd) + shape_speed(posed[pairs[p, 1]], ch_slide, kin, bm, qd)
+
+
+@kernel
+def avoidance_rows(posed, pairs, buf, ch_slide, kin, bm, influence, clearance, gain, dt):
+    """The velocity dampers of the pairs closer than ``influence`` (exact distances), as rows
+    ``C qd <= d`` of the bounded inverse's QP in ``buf``'s ``rows``/``rhs``: ``-d_dot <= gain
+    (d - clearance) / dt``, so a step consumes at most the fraction ``gain`` of a pair's excess
+    over the clearance (to first order; a pair below it is pushed back out). Returns how many."""
+    dist, exact, witness, rows, rhs = buf[1], buf[2], buf[3], buf[6], buf[7]
+    count = 0
+    for p in range(pairs.shape[0]):
+        if exact[p] == 0.0 or not dist[p] < influence:
+            continue
+        if not distance_rate_row(posed[pairs[p, 0]], posed[pairs[p, 1]], witness[p], ch_slide, kin, bm, rows[count]):
+            continue
+        for j in range(rows.shape[1]):
+            rows[count, j] = -rows[count, j]
+        rhs[count] = gain * (dist[p] - clearance) / dt
+        count += 1
+    return count
+
+
+@kernel
+def clearance_push(posed, pairs, buf, ch_slide, kin, bm, influence, gain, z):
+    """``z (n,)``: joint rates that raise the distance of each pair closer than ``influence`` at
+    ``gain (influence - d)`` m/s (each pair's least-norm rates, summed); the planner keeps their
+    null-space part (the ``clearance`` secondary objective)."""
+    dist, exact, witness, grad = buf[1], buf[2], buf[3], buf[13]
+    n = z.shape[0]
+    for j in range(n):
+        z[j] = 0.0
+    for p in range(pairs.shape[0]):
+        if exact[p] == 0.0 or not dist[p] < influence:
+            continue
+        if not distance_rate_row(posed[pairs[p, 0]], posed[pairs[p, 1]], witness[p], ch_slide, kin, bm, grad):
+            continue
+        norm2 = 0.0
+        for j in range(n):
+            norm2 += grad[j] * grad[j]
+        if not norm2 > 0.0:
+            continue
+        scale = gain * (influence - dist[p]) / norm2
+        for j in range(n):
+            z[j] += scale * grad[j]
