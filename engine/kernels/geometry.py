@@ -386,14 +386,13 @@ def core_distance(sa, sb, vertices, buf, witness):
         if count == 4 or new <= 1e-24 * scale:
             count = 0 if count == 4 else count
             break
-    if count == 0:
+    if count == 0:  # no closest points: one point of the overlap for both (no normal either)
         for r in range(3):
-            witness[0, r] = 0.0
-            witness[1, r] = 0.0
-        for k in range(4):
-            for r in range(3):
-                witness[0, r] += 0.25 * A[k, r]
-                witness[1, r] += 0.25 * B[k, r]
+            acc = 0.0
+            for k in range(4):
+                acc += 0.125 * (A[k, r] + B[k, r])
+            witness[0, r] = acc
+            witness[1, r] = acc
         return 0.0
     for r in range(3):
         acc_a = 0.0
@@ -667,12 +666,18 @@ def pair_speeds(posed, pairs, ch_slide, kin, bm, qd, out):
         out[p] = shape_speed(posed[pairs[p, 0]], ch_slide, kin, bm, qd) + shape_speed(posed[pairs[p, 1]], ch_slide, kin, bm, qd)
 
 
+#: The velocity dampers aim this fraction of the influence band above the clearance: they hold the
+#: distance to first order at the samples, and the margin absorbs the motion's curvature between them.
+DAMPER_MARGIN = 0.1
+
+
 @kernel
 def avoidance_rows(posed, pairs, buf, ch_slide, kin, bm, influence, clearance, gain, dt):
     """The velocity dampers of the pairs closer than ``influence`` (exact distances), as rows
     ``C qd <= d`` of the bounded inverse's QP in ``buf``'s ``rows``/``rhs``: ``-d_dot <= gain
-    (d - clearance) / dt``, so a step consumes at most the fraction ``gain`` of a pair's excess
-    over the clearance (to first order; a pair below it is pushed back out). Returns how many."""
+    (d - d_s) / dt`` with ``d_s`` the clearance plus :data:`DAMPER_MARGIN` of the band up to the
+    influence distance, so a step consumes at most the fraction ``gain`` of a pair's excess over
+    ``d_s`` (to first order; a pair below it is pushed back out). Returns how many."""
     dist, exact, witness, rows, rhs = buf[1], buf[2], buf[3], buf[6], buf[7]
     count = 0
     for p in range(pairs.shape[0]):
@@ -682,16 +687,22 @@ def avoidance_rows(posed, pairs, buf, ch_slide, kin, bm, influence, clearance, g
             continue
         for j in range(rows.shape[1]):
             rows[count, j] = -rows[count, j]
-        rhs[count] = gain * (dist[p] - clearance) / dt
+        rhs[count] = gain * (dist[p] - clearance - DAMPER_MARGIN * (influence - clearance)) / dt
         count += 1
     return count
+
+
+#: m/rad: damps the ``clearance`` objective's rates where a pair's distance barely depends on
+#: the joints (a pair the arm can hardly move apart is not pushed at unbounded rates).
+PUSH_DAMPING = 0.05
 
 
 @kernel
 def clearance_push(posed, pairs, buf, ch_slide, kin, bm, influence, gain, z):
     """``z (n,)``: joint rates that raise the distance of each pair closer than ``influence`` at
-    ``gain (influence - d)`` m/s (each pair's least-norm rates, summed); the planner keeps their
-    null-space part (the ``clearance`` secondary objective)."""
+    ``gain (influence - d)`` m/s (each pair's damped least-norm rates ``grad / (|grad|^2 +
+    PUSH_DAMPING^2)`` times that, summed); the planner keeps their null-space part (the
+    ``clearance`` secondary objective)."""
     dist, exact, witness, grad = buf[1], buf[2], buf[3], buf[13]
     n = z.shape[0]
     for j in range(n):
@@ -706,6 +717,6 @@ def clearance_push(posed, pairs, buf, ch_slide, kin, bm, influence, gain, z):
             norm2 += grad[j] * grad[j]
         if not norm2 > 0.0:
             continue
-        scale = gain * (influence - dist[p]) / norm2
+        scale = gain * (influence - dist[p]) / (norm2 + PUSH_DAMPING * PUSH_DAMPING)
         for j in range(n):
             z[j] += scale * grad[j]
