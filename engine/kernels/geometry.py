@@ -409,11 +409,78 @@ def core_distance(sa, sb, vertices, buf, witness):
 
 
 @kernel
+def _ends(shape, out):
+    """The ends of a point or segment core into ``out (2, 3)`` (a point's twice)."""
+    h = shape[DIMS] if int(shape[KIND]) == SEGMENT else 0.0
+    for r in range(3):
+        axis = shape[ROT + 3 * r + 2]
+        out[0, r] = shape[POS + r] - h * axis
+        out[1, r] = shape[POS + r] + h * axis
+
+
+@kernel
+def segment_distance(sa, sb, tmp, witness):
+    """The distance between point or segment cores in closed form (the closest points of two
+    segments, Ericson 5.1.9, clamped), their closest points into ``witness (2, 3)``. ``tmp (8,
+    3)`` scratch."""
+    P = tmp[0:2]
+    Q = tmp[2:4]
+    _ends(sa, P)
+    _ends(sb, Q)
+    d1x = P[1, 0] - P[0, 0]
+    d1y = P[1, 1] - P[0, 1]
+    d1z = P[1, 2] - P[0, 2]
+    d2x = Q[1, 0] - Q[0, 0]
+    d2y = Q[1, 1] - Q[0, 1]
+    d2z = Q[1, 2] - Q[0, 2]
+    rx = P[0, 0] - Q[0, 0]
+    ry = P[0, 1] - Q[0, 1]
+    rz = P[0, 2] - Q[0, 2]
+    a = d1x * d1x + d1y * d1y + d1z * d1z
+    e = d2x * d2x + d2y * d2y + d2z * d2z
+    f = d2x * rx + d2y * ry + d2z * rz
+    s = 0.0
+    t = 0.0
+    if a <= TINY and e <= TINY:
+        pass
+    elif a <= TINY:
+        t = min(max(f / e, 0.0), 1.0)
+    else:
+        c = d1x * rx + d1y * ry + d1z * rz
+        if e <= TINY:
+            s = min(max(-c / a, 0.0), 1.0)
+        else:
+            b = d1x * d2x + d1y * d2y + d1z * d2z
+            denom = a * e - b * b
+            if denom > 0.0:
+                s = min(max((b * f - c * e) / denom, 0.0), 1.0)
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = min(max(-c / a, 0.0), 1.0)
+            elif t > 1.0:
+                t = 1.0
+                s = min(max((b - c) / a, 0.0), 1.0)
+    for r in range(3):
+        witness[0, r] = P[0, r] + s * (P[1, r] - P[0, r])
+        witness[1, r] = Q[0, r] + t * (Q[1, r] - Q[0, r])
+    dx = witness[0, 0] - witness[1, 0]
+    dy = witness[0, 1] - witness[1, 1]
+    dz = witness[0, 2] - witness[1, 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@kernel
 def shape_distance(sa, sb, vertices, buf, witness):
     """Signed distance between posed shapes ``sa`` and ``sb``: their cores' distance less both
     radii (negative when the swept spheres overlap; ``-(r_a + r_b)`` when the cores intersect).
-    ``witness (2, 3)`` receives the closest points of the cores."""
-    return core_distance(sa, sb, vertices, buf, witness) - sa[RADIUS] - sb[RADIUS]
+    ``witness (2, 3)`` receives the closest points of the cores. Points and segments (spheres
+    and capsules) in closed form, the rest by GJK."""
+    if int(sa[KIND]) <= SEGMENT and int(sb[KIND]) <= SEGMENT:
+        core = segment_distance(sa, sb, buf[4], witness)
+    else:
+        core = core_distance(sa, sb, vertices, buf, witness)
+    return core - sa[RADIUS] - sb[RADIUS]
 
 
 @kernel
@@ -441,86 +508,47 @@ def distances_many(shapes_a, shapes_b, vertices, out, witness):
 
 
 @kernel
-def pose_one(shape, att, com, A0, com_w, out):
-    """Pose ``shape`` in the planner's base frame (the carrier's attitude the identity, the
-    system CoM at the origin): a body's shape by its attitude ``att[b]`` and CoM ``com[b]`` (the
-    kinematics buffers), an obstacle's (world pose) by ``x_b = A0^T (x_w - com_w)``."""
-    body = int(shape[BODY])
-    if body != WORLD:
-        pose_shape(shape, att[body], com[body], out)
-        return
-    R = np.empty((3, 3))
-    p = np.empty(3)
+def pose_into(shapes, s, att, com, A0, com_w, out, d):
+    """Pose shape row ``s`` of ``shapes`` into row ``d`` of ``out``, in the planner's base frame
+    (the carrier's attitude the identity, the system CoM at the origin): a body's shape by its
+    attitude ``att[b]`` and CoM ``com[b]`` (the kinematics buffers), an obstacle's (world pose)
+    by ``x_b = A0^T (x_w - com_w)``. (Indices, no row views or temporaries: it runs for every
+    shape at every sample.)"""
+    body = int(shapes[s, BODY])
+    for c in range(SHAPE_WIDTH):
+        out[d, c] = shapes[s, c]
     for r in range(3):
-        acc = 0.0
+        if body == WORLD:
+            r0 = A0[0, r]
+            r1 = A0[1, r]
+            r2 = A0[2, r]
+            pr = -(r0 * com_w[0] + r1 * com_w[1] + r2 * com_w[2])
+        else:
+            r0 = att[body, r, 0]
+            r1 = att[body, r, 1]
+            r2 = att[body, r, 2]
+            pr = com[body, r]
+        out[d, POS + r] = pr + r0 * shapes[s, POS] + r1 * shapes[s, POS + 1] + r2 * shapes[s, POS + 2]
         for c in range(3):
-            R[r, c] = A0[c, r]
-            acc -= A0[c, r] * com_w[c]
-        p[r] = acc
-    pose_shape(shape, R, p, out)
+            out[d, ROT + 3 * r + c] = r0 * shapes[s, ROT + c] + r1 * shapes[s, ROT + 3 + c] + r2 * shapes[s, ROT + 6 + c]
 
 
 @kernel
 def pose_all(shapes, att, com, A0, com_w, posed):
-    """:func:`pose_one` for every shape into ``posed (S, SHAPE_WIDTH)``."""
+    """:func:`pose_into` for every shape into ``posed (S, SHAPE_WIDTH)``."""
     for s in range(shapes.shape[0]):
-        pose_one(shapes[s], att, com, A0, com_w, posed[s])
+        pose_into(shapes, s, att, com, A0, com_w, posed, s)
 
 
 @kernel
-def lower_bound(sa, sb):
-    """A lower bound of the distance between posed shapes: their bounding spheres' distance."""
-    dx = sa[POS] - sb[POS]
-    dy = sa[POS + 1] - sb[POS + 1]
-    dz = sa[POS + 2] - sb[POS + 2]
-    return np.sqrt(dx * dx + dy * dy + dz * dz) - sa[BOUND] - sb[BOUND]
-
-
-@kernel
-def shape_speed(shape, ch_slide, kin, bm, qd):
-    """A bound (m/s) of the speed of every point of the posed ``shape`` (planner base frame):
-    ``|v_0| + |w_0| (|c - r_0| + R) + sum_j |qd_j| (|c - p_j| + R)`` over the joints that move
-    its body (``|qd_j|`` for a prismatic one), ``c`` its position and ``R`` its bounding
-    radius; 0 for an obstacle. ``bm (6, n)`` the base twist map, ``ch_slide (n,)`` 1.0 for a
-    prismatic joint."""
-    body = int(shape[BODY])
-    if body == WORLD:
-        return 0.0
-    _, com, jpos, _, _, _ = kin
-    n = qd.shape[0]
-    v0x = 0.0
-    v0y = 0.0
-    v0z = 0.0
-    w0x = 0.0
-    w0y = 0.0
-    w0z = 0.0
-    for j in range(n):
-        v0x += bm[0, j] * qd[j]
-        v0y += bm[1, j] * qd[j]
-        v0z += bm[2, j] * qd[j]
-        w0x += bm[3, j] * qd[j]
-        w0y += bm[4, j] * qd[j]
-        w0z += bm[5, j] * qd[j]
-    cx = shape[POS]
-    cy = shape[POS + 1]
-    cz = shape[POS + 2]
-    reach = shape[BOUND]
-    dx = cx - com[0, 0]
-    dy = cy - com[0, 1]
-    dz = cz - com[0, 2]
-    speed = np.sqrt(v0x * v0x + v0y * v0y + v0z * v0z) + np.sqrt(w0x * w0x + w0y * w0y + w0z * w0z) * (
-        np.sqrt(dx * dx + dy * dy + dz * dz) + reach
-    )
-    for j in range(body):  # joint j (0-based) moves bodies j+1 .. n
-        rate = abs(qd[j])
-        if ch_slide[j] != 0.0:
-            speed += rate
-        else:
-            ex = cx - jpos[j, 0]
-            ey = cy - jpos[j, 1]
-            ez = cz - jpos[j, 2]
-            speed += rate * (np.sqrt(ex * ex + ey * ey + ez * ez) + reach)
-    return speed
+def lower_bound(posed, a, b):
+    """A lower bound of the distance between posed shapes ``a`` and ``b``: their bounding
+    spheres' distance. (Indices rather than rows: a row view costs reference counting in the
+    planner's inner loop.)"""
+    dx = posed[a, POS] - posed[b, POS]
+    dy = posed[a, POS + 1] - posed[b, POS + 1]
+    dz = posed[a, POS + 2] - posed[b, POS + 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz) - posed[a, BOUND] - posed[b, BOUND]
 
 
 @kernel
@@ -582,7 +610,8 @@ def clearance_buffers(n, n_shapes, n_pairs):
     """Scratch of a plan's clearance checks: ``(posed (S, SHAPE_WIDTH), dist (P,), exact (P,)
     1.0 where ``dist`` is exact (else a lower bound), witness (P, 2, 3), prev_dist (P,),
     prev_speed (P,), rows (P, n), rhs (P,), gjk buffers, stats (8,), pair_posed (2,
-    SHAPE_WIDTH), pair_witness (2, 3), stack (64, 6), grad (n,))``."""
+    SHAPE_WIDTH), pair_witness (2, 3), stack (64, 6), grad (n,), step_speed (P,), reach (S,
+    n + 1))``."""
     return (
         np.empty((n_shapes, SHAPE_WIDTH)),
         np.empty(n_pairs),
@@ -598,6 +627,8 @@ def clearance_buffers(n, n_shapes, n_pairs):
         np.empty((2, 3)),
         np.empty((64, 6)),
         np.empty(n),
+        np.zeros(n_pairs),
+        np.empty((n_shapes, n + 1)),
     )
 
 
@@ -630,40 +661,124 @@ def note_distance(stats, d, t, pair, clearance):
 
 
 @kernel
-def sample_distances(shapes, vertices, pairs, att, com, A0, com_w, cutoff, clearance, margin, buf):
-    """Pose every shape and take each pair's distance: exact (GJK) where the bounding spheres'
-    lower bound is below ``cutoff`` or below ``clearance + margin`` times the pair's speed
-    bound of the last step (``prev_speed``: the pairs that the check between samples may need),
-    else that lower bound. Returns the smallest exact distance and its pair (``inf``, -1 when
-    none was exact)."""
-    posed, dist, exact, witness, prev_speed = buf[0], buf[1], buf[2], buf[3], buf[5]
-    gjk = buf[8]
-    pose_all(shapes, att, com, A0, com_w, posed)
+def sample_distances(pairs, vertices, cutoff, clearance, dt, first, refine, buf):
+    """Each pair's distance at a sample (shapes posed in ``buf``'s ``posed``): a lower bound
+    first, the larger of the bounding spheres' distance and (after the first sample) the last
+    sample's value less the step's speed bound times ``dt`` (``prev_dist``, ``step_speed``); then
+    exact (GJK or closed form) where that bound is below ``cutoff``, below the clearance plus the
+    step's travel (the check between samples may need it), or, with ``refine``, below the
+    smallest exact distance of the sample (so that it is exact). Returns that smallest exact
+    distance and its pair (``inf``, -1 when none was exact)."""
+    posed, dist, exact, witness, prev_dist = buf[0], buf[1], buf[2], buf[3], buf[4]
+    gjk, step_speed = buf[8], buf[14]
+    n_pairs = pairs.shape[0]
     best = np.inf
     best_pair = -1
-    for p in range(pairs.shape[0]):
-        a = pairs[p, 0]
-        b = pairs[p, 1]
-        bound = lower_bound(posed[a], posed[b])
-        if bound < cutoff or bound < clearance + margin * prev_speed[p]:
-            d = shape_distance(posed[a], posed[b], vertices, gjk, witness[p])
+    for p in range(n_pairs):
+        bound = lower_bound(posed, pairs[p, 0], pairs[p, 1])
+        if not first:
+            bound = max(bound, prev_dist[p] - step_speed[p] * dt)
+        dist[p] = bound
+        exact[p] = 0.0
+        if bound < cutoff or bound < clearance + step_speed[p] * dt:
+            d = shape_distance(posed[pairs[p, 0]], posed[pairs[p, 1]], vertices, gjk, witness[p])
             dist[p] = d
             exact[p] = 1.0
             if d < best:
                 best = d
                 best_pair = p
-        else:
-            dist[p] = bound
-            exact[p] = 0.0
+    while refine:  # the nearest bound below the best exact distance, until none is
+        nearest = -1
+        for p in range(n_pairs):
+            if exact[p] == 0.0 and dist[p] < best and (nearest < 0 or dist[p] < dist[nearest]):
+                nearest = p
+        if nearest < 0:
+            break
+        d = shape_distance(posed[pairs[nearest, 0]], posed[pairs[nearest, 1]], vertices, gjk, witness[nearest])
+        dist[nearest] = d
+        exact[nearest] = 1.0
+        if d < best:
+            best = d
+            best_pair = nearest
     return best, best_pair
 
 
 @kernel
-def pair_speeds(posed, pairs, ch_slide, kin, bm, qd, out):
-    """``out (P,)``: a bound of how fast each pair's distance can change (m/s) with the joint
-    rates ``qd``: the sum of its two shapes' :func:`shape_speed`."""
+def joint_reach(posed, ch_slide, kin, reach):
+    """``reach (S, n + 1)``: for each posed shape, how fast its points can move per unit rate of
+    each joint that moves its body (m per rad: its distance from the joint's axis line plus its
+    bounding radius; 1 for a prismatic joint; 0 for the joints that do not move it), and in the
+    last column its bounding distance from the carrier's CoM (for the carrier's rotation)."""
+    _, com, jpos, jaxis, _, _ = kin
+    n = jpos.shape[0]
+    for s in range(posed.shape[0]):
+        body = int(posed[s, BODY])
+        cx = posed[s, POS]
+        cy = posed[s, POS + 1]
+        cz = posed[s, POS + 2]
+        extent = posed[s, BOUND]
+        for j in range(n):
+            if j >= body:  # also every joint for an obstacle (body -1): it does not move
+                reach[s, j] = 0.0
+            elif ch_slide[j] != 0.0:
+                reach[s, j] = 1.0
+            else:
+                ex = cx - jpos[j, 0]
+                ey = cy - jpos[j, 1]
+                ez = cz - jpos[j, 2]
+                kx = jaxis[j, 0]
+                ky = jaxis[j, 1]
+                kz = jaxis[j, 2]
+                px = ky * ez - kz * ey
+                py = kz * ex - kx * ez
+                pz = kx * ey - ky * ex
+                reach[s, j] = np.sqrt(px * px + py * py + pz * pz) + extent
+        dx = cx - com[0, 0]
+        dy = cy - com[0, 1]
+        dz = cz - com[0, 2]
+        reach[s, n] = np.sqrt(dx * dx + dy * dy + dz * dz) + extent
+
+
+@kernel
+def pair_speeds(posed, pairs, reach, bm, qd, out):
+    """``out (P,)``: a bound (m/s) of how fast each pair's distance changes under the joint rates
+    ``qd``, from :func:`joint_reach`. Only what moves one shape relative to the other counts: the
+    joints between two links' bodies (the carrier and the joints before both move them rigidly
+    together), every joint up to a link for the carrier and that link, and the carrier's own
+    motion (``bm (6, n)``, its twist per joint rate) against an obstacle."""
+    n = qd.shape[0]
+    v0 = 0.0
+    w0 = 0.0
+    vx = 0.0
+    vy = 0.0
+    vz = 0.0
+    wx = 0.0
+    wy = 0.0
+    wz = 0.0
+    for j in range(n):
+        vx += bm[0, j] * qd[j]
+        vy += bm[1, j] * qd[j]
+        vz += bm[2, j] * qd[j]
+        wx += bm[3, j] * qd[j]
+        wy += bm[4, j] * qd[j]
+        wz += bm[5, j] * qd[j]
+    v0 = np.sqrt(vx * vx + vy * vy + vz * vz)
+    w0 = np.sqrt(wx * wx + wy * wy + wz * wz)
     for p in range(pairs.shape[0]):
-        out[p] = shape_speed(posed[pairs[p, 0]], ch_slide, kin, bm, qd) + shape_speed(posed[pairs[p, 1]], ch_slide, kin, bm, qd)
+        a = pairs[p, 0]
+        b = pairs[p, 1]
+        body_a = int(posed[a, BODY])
+        body_b = int(posed[b, BODY])
+        if body_a > body_b:  # b the outer body (an obstacle, -1, is always the inner)
+            a, b = b, a
+            body_a, body_b = body_b, body_a
+        speed = 0.0
+        first = 0 if body_a <= 0 else body_a
+        for j in range(first, body_b):
+            speed += abs(qd[j]) * reach[b, j]
+        if body_a < 0:  # an obstacle: the carrier's motion moves the other shape too
+            speed += v0 + w0 * reach[b, n]
+        out[p] = speed
 
 
 #: The velocity dampers aim this fraction of the influence band above the clearance: they hold the

@@ -61,13 +61,14 @@ from engine.kernels.geometry import (
     avoidance_rows,
     clearance_buffers,
     clearance_push,
+    joint_reach,
     note_distance,
     pair_speeds,
-    pose_one,
+    pose_all,
+    pose_into,
     reset_stats,
     sample_distances,
     shape_distance,
-    shape_speed,
 )
 from engine.kernels.inverse import BOUNDED, apply_inverse
 from engine.kernels.jit import kernel
@@ -283,10 +284,13 @@ def bound_rates(ch, q, dt, speed_limit, U, s, V, damping, lam, xdot, qd, shift, 
 @kernel
 def clearance_work(ch, n):
     """Scratch of :func:`distance_at`: kinematics and GJM buffers (twice), ``q_s (n,)``, the
-    advance buffers, ``A_s (3, 3)``, and ``slide (n,)`` (1.0 for a prismatic joint)."""
+    advance buffers, ``A_s (3, 3)``, ``slide (n,)`` (1.0 for a prismatic joint), and a pair's
+    reach ``(2, n + 1)``, indices ``(1, 2)`` and speed ``(1,)``."""
     slide = np.empty(n)
     for j in range(n):
         slide[j] = ch.joints[j, SLIDE]
+    one_pair = np.zeros((1, 2), dtype=np.int64)
+    one_pair[0, 1] = 1
     return (
         kinematics_buffers(n),
         gjm_buffers(n),
@@ -296,6 +300,9 @@ def clearance_work(ch, n):
         advance_buffers(n),
         np.empty((3, 3)),
         slide,
+        np.empty((2, n + 1)),
+        one_pair,
+        np.empty(1),
     )
 
 
@@ -305,7 +312,7 @@ def distance_at(ch, shapes, vertices, a, b, q0, qd, A0, com_w, s, cbuf, work):
     ``q0`` and base attitude ``A0`` with rates ``qd`` (the planner's joint line and Magnus base
     step, :func:`advance`), and the bound of its rate of change there. Uses ``cbuf``'s pair
     buffers."""
-    kin, g, kin_m, g_m, q_s, adv, A_s, slide = work
+    kin, g, kin_m, g_m, q_s, adv, A_s, slide, reach, one_pair, speed = work
     posed2, witness2, gjk = cbuf[10], cbuf[11], cbuf[8]
     eye = adv[7]
     zero = adv[8]
@@ -316,11 +323,12 @@ def distance_at(ch, shapes, vertices, a, b, q0, qd, A0, com_w, s, cbuf, work):
             A_s[r, c] = A0[r, c]
     if s > 0.0:
         advance(ch, q0, qd, s, A_s, kin, g, kin_m, g_m, q_s, adv)  # kin and g now of q0 + s qd
-    pose_one(shapes[a], kin[0], kin[1], A_s, com_w, posed2[0])
-    pose_one(shapes[b], kin[0], kin[1], A_s, com_w, posed2[1])
+    pose_into(shapes, a, kin[0], kin[1], A_s, com_w, posed2, 0)
+    pose_into(shapes, b, kin[0], kin[1], A_s, com_w, posed2, 1)
     d = shape_distance(posed2[0], posed2[1], vertices, gjk, witness2)
-    speed = shape_speed(posed2[0], slide, kin, g[1], qd) + shape_speed(posed2[1], slide, kin, g[1], qd)
-    return d, speed
+    joint_reach(posed2, slide, kin, reach)
+    pair_speeds(posed2, one_pair, reach, g[1], qd, speed)
+    return d, speed[0]
 
 
 @kernel
@@ -537,12 +545,18 @@ def simulate(
                 if j == limit_joint:
                     limit_excess = max(limit_excess, excess)
         if checking:
-            # exact distances for every pair when the trace is kept; else for those that may be
-            # the smallest, constrain the step, or need the check between samples
-            cutoff = np.inf if record else max(stats[MIN_D], influence if (avoid_rows or avoid_null) else -np.inf)
-            best, best_pair = sample_distances(
-                shapes, vertices, pairs, kin[0], kin[1], A0, com_w, cutoff, clearance, dt if k > 0 else 0.0, cbuf
-            )
+            pose_all(shapes, kin[0], kin[1], A0, com_w, cbuf[0])
+            prev_dist, prev_speed, step_speed = cbuf[4], cbuf[5], cbuf[14]
+            joint_reach(cbuf[0], slide, kin, cbuf[15])
+            if k > 0:  # the speed bound of the step that just ended: its rates at either end
+                pair_speeds(cbuf[0], pairs, cbuf[15], g[1], qd_prev, speed_now)
+                for p in range(n_pairs):
+                    step_speed[p] = max(prev_speed[p], speed_now[p])
+            # exact distances for the pairs that may be the smallest (of the sample when the trace
+            # is kept, else of the plan), that constrain the step, or that the check between
+            # samples may need; lower bounds for the others
+            cutoff = max(stats[MIN_D], influence if (avoid_rows or avoid_null) else -np.inf)
+            best, best_pair = sample_distances(pairs, vertices, cutoff, clearance, dt, k == 0, record, cbuf)
             if record:
                 tr_clear[k] = best
                 tr_cpair[k] = best_pair
@@ -551,10 +565,13 @@ def simulate(
                 if exact[p] != 0.0:
                     note_distance(stats, dist[p], t_k, p, clearance)
             if k > 0:  # the step that just ended, between samples
-                pair_speeds(cbuf[0], pairs, slide, kin, g[1], qd_prev, speed_now)
-                prev_dist, prev_speed = cbuf[4], cbuf[5]
                 for p in range(n_pairs):
-                    if prev_dist[p] >= clearance and dist[p] >= clearance:
+                    # (the call only where the Lipschitz bound cannot tell: it takes the buffers)
+                    if (
+                        prev_dist[p] >= clearance
+                        and dist[p] >= clearance
+                        and (0.5 * (prev_dist[p] + dist[p] - step_speed[p] * dt) < clearance)
+                    ):
                         check_interval(
                             ch,
                             shapes,
@@ -570,7 +587,7 @@ def simulate(
                             com_w,
                             prev_dist[p],
                             dist[p],
-                            max(prev_speed[p], speed_now[p]),
+                            step_speed[p],
                             clearance,
                             cbuf,
                             cwork,
@@ -664,7 +681,7 @@ def simulate(
         if k == N:
             break
         if checking:  # what the check of the coming step needs from its start
-            pair_speeds(cbuf[0], pairs, slide, kin, g[1], qd, cbuf[5])
+            pair_speeds(cbuf[0], pairs, cbuf[15], g[1], qd, cbuf[5])
             for p in range(n_pairs):
                 cbuf[4][p] = cbuf[1][p]
             for j in range(n):
