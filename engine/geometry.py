@@ -393,3 +393,41 @@ def distance(
     witness = np.empty((1, 2, 3))
     kernels.distances_many(row_a[None], row_b[None], vertices, out, witness)
     return Distance(float(out[0]), witness[0])
+
+
+def shape_outline(shape: Shape, segments: int = 24) -> list[FloatArray]:
+    """Polylines ``(K, 3)`` m that outline ``shape`` where it is (for drawing): a box's 12 edges,
+    three great circles of a sphere, a capsule's axis and the circles at its ends, a cylinder's
+    rims and four sides, a convex shape's hull edges."""
+    R, c = shape.rotation, shape.position
+    angle = np.linspace(0.0, 2.0 * np.pi, segments + 1)
+    ring = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], axis=1)
+
+    def placed(points: FloatArray) -> FloatArray:
+        return c + points @ R.T
+
+    if shape.type == "sphere":
+        r = shape.radius
+        return [placed(r * ring[:, perm]) for perm in ([0, 1, 2], [0, 2, 1], [2, 0, 1])]
+    if shape.type == "capsule":
+        h, r = shape.dims[0], shape.radius
+        axis = np.array([[0.0, 0.0, -h], [0.0, 0.0, h]])
+        return [placed(axis), placed(r * ring + [0.0, 0.0, -h]), placed(r * ring + [0.0, 0.0, h])]
+    if shape.type == "box":
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float) * shape.dims
+        edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
+        return [placed(corners[[i, j]]) for i, j in edges]
+    if shape.type == "cylinder":
+        r, h = shape.dims[0], shape.dims[1]
+        rims = [placed(r * ring + [0.0, 0.0, z]) for z in (-h, h)]
+        sides = [placed(np.array([[r * np.cos(a), r * np.sin(a), -h], [r * np.cos(a), r * np.sin(a), h]])) for a in angle[:-1:6]]
+        return rims + sides
+    assert shape.vertices is not None
+    from scipy.spatial import ConvexHull  # only for drawing hulls
+
+    hull = ConvexHull(shape.vertices)
+    lines: set[tuple[int, int]] = set()
+    for simplex in hull.simplices:
+        for a, b in zip(simplex, np.roll(simplex, 1), strict=True):
+            lines.add((min(int(a), int(b)), max(int(a), int(b))))
+    return [placed(shape.vertices[list(line)]) for line in sorted(lines)]

@@ -24,7 +24,21 @@ from service.infra.db import Database
 from service.infra.ratelimit import AddressLimiter
 from service.infra.retention import Sweeper
 from service.infra.settings import Settings
-from service.routers import docs, figures, health, job_events, landscapes, metrics, plans, robots, shortest, tasks, tuning, web
+from service.routers import (
+    docs,
+    figures,
+    health,
+    job_events,
+    landscapes,
+    meshes,
+    metrics,
+    plans,
+    robots,
+    shortest,
+    tasks,
+    tuning,
+    web,
+)
 from service.usecases.job_events import JobFeeds
 from service.usecases.plans import rehearse
 from service.usecases.robots import seed_presets
@@ -46,6 +60,7 @@ TAGS = [
         "name": "robots",
         "description": "Robots: parameter sets (the schema of engine/data/table1_robot.json) or URDF files, their URDF, the GJM",
     },
+    {"name": "meshes", "description": "Meshes (STL, OBJ) whose convex hulls are obstacles of task scenes"},
     {"name": "tasks", "description": "Task presets; `paper-line` is the paper's detection line"},
     {"name": "plans", "description": "Synchronous Cartesian plans with a robust inverse"},
     {"name": "tuning", "description": "Asynchronous GA tuning jobs of the damping parameters, with live events"},
@@ -63,6 +78,7 @@ WARM_UP_PATHS = (
     "/v1/plans/warm-up",
     "/v1/plans/warm-up/figures/joint-angles",
     "/v1/robots/warm-up",
+    "/v1/meshes",
     "/v1/task-presets",
     "/v1/tuning-jobs/warm-up",
     "/plans/warm-up",
@@ -182,7 +198,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     openapi.install(app, auth_required=bool(settings.keys()))
     observability.install(app)
     app.include_router(metrics.make_router(auth_required=bool(settings.keys())))
-    for module in (health, robots, tasks, plans, shortest, tuning, job_events, landscapes, figures, web, docs):
+    for module in (health, robots, meshes, tasks, plans, shortest, tuning, job_events, landscapes, figures, web, docs):
         app.include_router(module.router)
     app.mount(docs.ASSETS_URL, docs.assets(), name="docs-assets")
     app.mount("/static", StaticFiles(directory=STATIC), name="static")

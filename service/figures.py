@@ -54,6 +54,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FixedLocator, FuncFormatter, MaxNLocator, NullLocator
 
 from engine.errors import ParameterError
+from engine.geometry import Shape, distance, shape_outline
 from engine.inverses import METHODS
 from engine.kinematics import kinematics_batch
 from engine.model import RobotModel
@@ -128,6 +129,10 @@ class PlanData:
         self.position_error = _arr(record["position_error"])
         self.attitude_error = _arr(record["attitude_error"])
         self.dynamics = Dynamics(record, self.q.shape)
+        #: ``(N+1,)`` m, the smallest distance of the checked pairs; None without geometry
+        self.clearance = _arr(record["clearance"]) if "clearance" in record else None
+        #: the task's obstacles (engine shapes, world frame), set by whoever loads the plan
+        self.obstacles: tuple[Shape, ...] = ()
 
     @property
     def label(self) -> str:
@@ -595,6 +600,29 @@ def draw_carrier_wrench(data: PlanData, axes: Sequence[Axes]) -> None:
     _legend(ax_t, 2)
 
 
+def draw_clearance(data: PlanData, axes: Sequence[Axes]) -> None:
+    """The smallest distance between the checked pairs of shapes at each sample (mm), with the
+    task's clearance and the avoidance's influence distance; the closest approach over the plan
+    (samples and between them) marked with its pair."""
+    (ax,) = axes
+    if data.clearance is None:
+        ax.text(0.5, 0.5, "no collision geometry (no shapes on the robot)", transform=ax.transAxes, ha="center")
+        return
+    _line(ax, data.t, data.clearance * 1e3, label="smallest distance of any pair", color="C0")
+    task = data.request.get("task") or {}
+    clearance = float(task.get("clearance_m") or 0.0)
+    influence = float((task.get("scene") or {}).get("influence_distance_m") or 0.1)
+    ax.axhline(clearance * 1e3, color="C3", linewidth=1.0, label=f"clearance {clearance * 1e3:.3g} mm")
+    ax.axhline(influence * 1e3, color="0.5", linewidth=0.8, linestyle=":", label=f"influence distance {influence * 1e3:.3g} mm")
+    t_min, d_min = data.metrics.get("t_min_clearance_s"), data.metrics.get("min_clearance_m")
+    pair = data.metrics.get("min_clearance_pair")
+    if t_min is not None and d_min is not None:
+        names = " and ".join(pair) if pair else "?"
+        ax.plot([t_min], [d_min * 1e3], marker="v", color="C3", linestyle="none", label=f"closest: {names}, {d_min * 1e3:.3g} mm")
+    ax.set_ylabel("distance [mm]")
+    _legend(ax)
+
+
 SCENE_INSTANTS = 5
 #: The carrier's drift is drawn magnified to this fraction of the scene's size (and labelled so).
 DRIFT_SCENE_FRACTION = 0.15
@@ -670,7 +698,15 @@ def draw_scene(ax: Any, data: PlanData) -> None:
         )
     ax.plot(*desired.T, color="C0", linewidth=4.0, alpha=0.5, label="desired end-effector path", zorder=SCENE_ZORDER["desired"])
     ax.plot(*achieved.T, color="C1", linewidth=1.3, label="achieved end-effector path", zorder=SCENE_ZORDER["achieved"])
-    points = [p for p in (desired, achieved, *arms) if p.size]
+    for i, shape in enumerate(data.obstacles):
+        for k, segment in enumerate(shape_outline(shape)):
+            ax.plot(*segment.T, color="C4", linewidth=0.7, alpha=0.8, label="obstacles" if i == 0 and k == 0 else None, zorder=1)
+    closest = closest_pair(data)
+    if closest is not None:
+        points_ab, label = closest
+        ax.plot(*points_ab.T, color="C3", linewidth=2.0, marker="x", label=label, zorder=SCENE_ZORDER["achieved"] + 1)
+    outlines = [seg for shape in data.obstacles for seg in shape_outline(shape)]
+    points = [p for p in (desired, achieved, *arms, *outlines) if p.size]
     cloud = np.concatenate(points) if points else np.zeros((1, 3))
     cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
     base = data.base_position[np.all(np.isfinite(data.base_position), axis=1)]
@@ -705,6 +741,44 @@ def draw_scene(ax: Any, data: PlanData) -> None:
     ax.set_xlabel("x [m]", labelpad=4)
     ax.set_ylabel("y [m]", labelpad=4)
     ax.set_zlabel("z [m]", labelpad=4)
+
+
+def _body_shapes(model: RobotModel) -> list[tuple[str, int, Shape]]:
+    out = [("carrier", 0, shape) for shape in model.base.shapes]
+    for i, link in enumerate(model.links):
+        out += [(link.name, i + 1, shape) for shape in link.shapes]
+    return out
+
+
+def closest_pair(data: PlanData) -> tuple[np.ndarray, str] | None:
+    """The closest points ``(2, 3)`` m of the plan's closest pair at the sample nearest its
+    time, and a label; None without geometry or robot. Placed by the engine's forward
+    kinematics (bodies' CoMs and attitudes) and distances (:func:`engine.geometry.distance`)."""
+    pair, t_min = data.metrics.get("min_clearance_pair"), data.metrics.get("t_min_clearance_s")
+    if not pair or t_min is None or not data.robot or data.q.size == 0:
+        return None
+    try:
+        model = RobotModel.from_dict(data.robot)
+    except (ParameterError, KeyError, TypeError, ValueError):
+        return None
+    k = int(np.argmin(np.abs(data.t - float(t_min))))
+    R = _rotations(data.base_quat[k : k + 1])
+    if not (np.all(np.isfinite(data.q[k])) and np.all(np.isfinite(R))) or data.q.shape[1] != model.n_joints:
+        return None
+    kin = kinematics_batch(model, data.q[k : k + 1], R, data.base_position[k : k + 1])
+    poses = {body: (kin.body_attitudes[0, body], kin.body_com[0, body]) for body in range(model.n_joints + 1)}
+    owners: dict[str, list[tuple[Shape, tuple[np.ndarray, np.ndarray] | None]]] = {}
+    for name, body, shape in _body_shapes(model):
+        owners.setdefault(name, []).append((shape, poses[body]))
+    for i, shape in enumerate(data.obstacles):
+        owners.setdefault(f"obstacle{i}", []).append((shape, None))
+    if pair[0] not in owners or pair[1] not in owners:
+        return None
+    best = min(
+        (distance(a, b, pose_a, pose_b) for a, pose_a in owners[pair[0]] for b, pose_b in owners[pair[1]]),
+        key=lambda d: d.distance,
+    )
+    return best.points, f"closest pair at t = {data.t[k]:.3g} s: {pair[0]} and {pair[1]}, {best.distance * 1e3:.3g} mm"
 
 
 def fig_scene_3d(data: PlanData) -> Figure:
@@ -745,6 +819,7 @@ PLAN_FIGURE_SPECS: dict[str, PlanFigure] = {
     "carrier-wrench": PlanFigure(
         "Wrench on the carrier at joint 1 (carrier frame)", "Wrench on the carrier", 2, draw_carrier_wrench
     ),
+    "clearance": PlanFigure("Clearance: smallest distance between shapes", "Clearance over time", 1, draw_clearance),
     "scene-3d": PlanFigure(
         "3D view: end-effector path, arm and carrier", "3D view: path, arm and carrier (Fig. 10)", 0, lambda d, a: None
     ),

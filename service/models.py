@@ -50,6 +50,23 @@ class Robot(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+class Mesh(Base):
+    """An uploaded mesh (STL or OBJ), stored once (its id is a hash of its bytes): what the scenes
+    need of it, its convex hull, and what describes it."""
+
+    __tablename__ = "meshes"
+
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    name: Mapped[str] = mapped_column(String(200))
+    format: Mapped[str] = mapped_column(String(8))
+    size_bytes: Mapped[int] = mapped_column(Integer)
+    vertex_count: Mapped[int] = mapped_column(Integer)
+    face_count: Mapped[int] = mapped_column(Integer)
+    hull: Mapped[bytes] = mapped_column(LargeBinary)  # (V, 3) float64 little-endian, m
+    bounds: Mapped[list[list[float]]] = mapped_column(JSON)  # [[x, y, z] min, [x, y, z] max], m
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, index=True)
+
+
 class Plan(Base):
     __tablename__ = "plans"
 

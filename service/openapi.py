@@ -29,9 +29,16 @@ LOCATION = {"Location": {"schema": {"type": "string"}, "description": "the path 
 BODY_MODELS = (RobotUrdfIn, PlanRerun, RosJointTrajectory)
 
 #: Operations that store something (and answer 507 when the storage quota is spent).
-STORING = ("create_plan", "create_shortest_duration_plan", "create_robot", "create_tuning_job", "create_landscape")
+STORING = (
+    "create_plan",
+    "create_shortest_duration_plan",
+    "create_robot",
+    "create_mesh",
+    "create_tuning_job",
+    "create_landscape",
+)
 #: Synchronous plan work behind the plan admission (503 with Retry-After when it is full).
-ADMITTED = ("create_plan", "create_shortest_duration_plan", "create_landscape", "create_robot")
+ADMITTED = ("create_plan", "create_shortest_duration_plan", "create_landscape", "create_robot", "create_mesh")
 
 #: operationId -> (status, {link name: (target operationId, {parameter: runtime expression})}).
 LINKS: dict[str, tuple[str, dict[str, tuple[str, dict[str, str]]]]] = {
@@ -56,6 +63,13 @@ LINKS: dict[str, tuple[str, dict[str, tuple[str, dict[str, str]]]]] = {
             "GetRobot": ("get_robot", {"robot_id": "$response.body#/id"}),
             "ComputeJacobian": ("compute_jacobian", {"robot_id": "$response.body#/id"}),
             "DeleteRobot": ("delete_robot", {"robot_id": "$response.body#/id"}),
+        },
+    ),
+    "create_mesh": (
+        "201",
+        {
+            "GetMesh": ("get_mesh", {"mesh_id": "$response.body#/id"}),
+            "DeleteMesh": ("delete_mesh", {"mesh_id": "$response.body#/id"}),
         },
     ),
     "create_landscape": (

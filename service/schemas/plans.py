@@ -203,7 +203,7 @@ class Trajectory(Output):
 
     model_config = ConfigDict(
         json_schema_extra=_not_required(
-            "joint_displacements_m", "joint_velocities_m_s", "joint_accelerations_m_s2", "joint_forces_n"
+            "joint_displacements_m", "joint_velocities_m_s", "joint_accelerations_m_s2", "joint_forces_n", "clearance_m"
         )
     )
 
@@ -271,6 +271,11 @@ class Trajectory(Output):
         description=f"the torque the arm exerts on the carrier about joint 1's origin, carrier frame, N m; {PER_SAMPLE}, "
         f"[x, y, z]; {NO_DYNAMICS}"
     )
+    clearance_m: list[float | None] | None = Field(
+        default=None,
+        description=f"the smallest distance between the checked pairs of shapes at each sample, m ({PER_SAMPLE}; "
+        "negative: overlapping); only for plans with collision geometry (left out otherwise)",
+    )
 
     @staticmethod
     def arrays(record: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -313,6 +318,7 @@ class Trajectory(Output):
             "position_error_m": record["position_error"],
             "attitude_error_rad": record["attitude_error"],
             **{name: dynamics[name] for name in DYNAMICS_ORDER if name in dynamics},
+            **({"clearance_m": record["clearance"]} if "clearance" in record else {}),
         }
 
 

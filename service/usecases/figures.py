@@ -10,13 +10,16 @@ from pydantic import ValidationError
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from engine.errors import ParameterError
+from engine.geometry import Shape
 from service import figures
 from service.errors import ApiValidationError, NotFoundError
 from service.infra.db import Database
 from service.infra.storage import unpack_trajectory
 from service.models import Plan, Robot, TuningJob
+from service.schemas.geometry import SceneIn
 from service.schemas.robots import RobotParams
-from service.usecases import tuning_jobs
+from service.usecases import meshes, tuning_jobs
 from service.usecases.plans import record_from_storage
 
 #: Plans on one comparison figure, at most.
@@ -37,9 +40,22 @@ def robot_parameters(session: Session, p: Plan) -> dict[str, Any] | None:
         return None
 
 
+def obstacles(session: Session, request: dict[str, Any] | None) -> tuple[Shape, ...]:
+    """The obstacles of a stored plan's request (world frame; a mesh by its stored hull), none
+    when the request has none or this version cannot read them (a mesh deleted since)."""
+    scene = ((request or {}).get("task") or {}).get("scene")
+    if not isinstance(scene, dict) or not scene.get("obstacles"):
+        return ()
+    try:
+        with meshes.hulls(session):
+            return SceneIn.model_validate(scene).to_engine(0.0).obstacles
+    except (ValidationError, ParameterError):
+        return ()
+
+
 def plan_data(session: Session, row: Plan, with_robot: bool = True) -> figures.PlanData:
     """A stored plan as the figures read it."""
-    return figures.PlanData(
+    data = figures.PlanData(
         record_from_storage(unpack_trajectory(row.trajectory_data)),
         plan_id=row.id,
         method=row.method,
@@ -47,6 +63,8 @@ def plan_data(session: Session, row: Plan, with_robot: bool = True) -> figures.P
         request=row.request,
         robot=robot_parameters(session, row) if with_robot else None,
     )
+    data.obstacles = obstacles(session, row.request)
+    return data
 
 
 def plan_figure(db: Database, plan_id: str, name: str, fmt: str, dpi: float | None = None) -> tuple[bytes, bool]:

@@ -20,7 +20,7 @@ from service.infra.storage import pack_trajectory, unpack_trajectory
 from service.models import Landscape, TuningJob
 from service.schemas.common import located
 from service.schemas.landscapes import LandscapeRequest
-from service.usecases import robots, rows
+from service.usecases import meshes, robots, rows
 
 #: Work bound of one landscape: cells x tasks x plan-steps x joints (about a microsecond each on
 #: one core; the grid is spread over every core).
@@ -77,13 +77,13 @@ def create(db: Database, settings: Settings, body: LandscapeRequest) -> tuple[st
         x_values = body.x.values()
     with located(body.y, "body", "y"):
         y_values = body.y.values()
-    with db.session() as session:
+    tasks = []
+    with db.session() as session, meshes.hulls(session):
         robot_id, model = robots.resolve(session, body.robot_id, body.robot)
         marks = _marks(session, body) if body.tuning_job_id else None
-    tasks = []
-    for i, task in enumerate(body.tasks):
-        with located(task, "body", "tasks", i):
-            tasks.append(task.to_engine(model))
+        for i, task in enumerate(body.tasks):
+            with located(task, "body", "tasks", i):
+                tasks.append(task.to_engine(model))
     work = x_values.size * y_values.size * sum(t.n_steps + 1 for t in tasks) * model.n_joints
     if work > MAX_LANDSCAPE_JOINT_STEPS:
         raise _invalid(

@@ -47,7 +47,7 @@ from service.schemas.plans import (
     Trajectory,
     metrics_out,
 )
-from service.usecases import robots, rows
+from service.usecases import meshes, robots, rows
 
 #: A plan whose joints turn more than this in all is not replayed (not physically meaningful).
 REPLAY_MAX_TRAVEL_RAD = 200.0
@@ -64,8 +64,9 @@ def _quaternions(R: np.ndarray) -> np.ndarray:
 def record_of(result: PlanResult, model: RobotModel) -> dict[str, np.ndarray]:
     """The stored record of a plan: its arrays in SI units by their engine names, attitudes as
     unit quaternions ``[w, x, y, z]``, the executed trajectory's accelerations, torques (forces)
-    and mount wrench, ``prismatic (n,)`` (1.0 for a prismatic joint) and the robot's
-    ``effort_limit (n,)`` when planned (N m or N, inf: none; for the figures)."""
+    and mount wrench, ``prismatic (n,)`` (1.0 for a prismatic joint), the robot's
+    ``effort_limit (n,)`` when planned (N m or N, inf: none; for the figures) and, for a plan
+    with collision geometry, its ``clearance (N+1,)`` m."""
     return {
         "prismatic": np.asarray(model.prismatic, dtype=float),
         "effort_limit": np.asarray(model.effort_limits, dtype=float),
@@ -87,6 +88,7 @@ def record_of(result: PlanResult, model: RobotModel) -> dict[str, np.ndarray]:
         "damping": result.damping,
         "position_error": result.position_error,
         "attitude_error": result.attitude_error,
+        **({"clearance": result.clearance} if result.metrics.geometry_checked else {}),
     }
 
 
@@ -177,11 +179,13 @@ def prepare(db: Database | None, body: PlanRequest) -> Prepared:
     request: 422s name the API field the engine refused."""
     if db is None:
         robot_id, model = robots.resolve_preset(body.robot_id, body.robot)
+        with located(body.task, "body", "task"):
+            task = body.task.to_engine(model)
     else:
-        with db.session() as session:  # no connection held while planning
+        with db.session() as session, meshes.hulls(session):  # no connection held while planning
             robot_id, model = robots.resolve(session, body.robot_id, body.robot)
-    with located(body.task, "body", "task"):
-        task = body.task.to_engine(model)
+            with located(body.task, "body", "task"):
+                task = body.task.to_engine(model)
     with located(body.method, "body", "method"):
         inverse = body.method.to_engine()
     with located(body, "body"):

@@ -33,7 +33,7 @@ from service.schemas.tuning import (
     TuningJobRequest,
     TuningJobResult,
 )
-from service.usecases import robots, rows
+from service.usecases import meshes, robots, rows
 
 RETRY_AFTER_S = 10  # Retry-After of a 429 (the queue is full)
 MAX_PLAN_EVALUATIONS = 200_000
@@ -205,7 +205,8 @@ def submit(db: Database, settings: Settings, body: TuningJobRequest, idempotency
             if existing is not None:
                 return _replayed(session, existing, idempotency_key, digest)
         robot_id, model = robots.resolve(session, body.robot_id, body.robot)
-        check(model, body)
+        with meshes.hulls(session):
+            check(model, body)
         check_quota(session, settings.storage_quota_bytes, len(jsonio.dumps(body.stored())))
 
     def insert(s: Session) -> TuningJob:

@@ -34,7 +34,7 @@ from service.infra import jsonio
 from service.infra.db import Database, is_database_fault, unavailable_reason
 from service.models import JobGeneration, TuningJob
 from service.schemas.tuning import TuningJobRequest, TuningJobResult
-from service.usecases import robots
+from service.usecases import meshes, robots
 
 log = logging.getLogger("spacearm.worker")
 T = TypeVar("T")
@@ -104,7 +104,8 @@ class _Job:
             body = TuningJobRequest.model_validate(dict(job.request))
             _, model = robots.resolve(s, body.robot_id, body.robot)
             s.execute(delete(JobGeneration).where(JobGeneration.job_id == job.id, JobGeneration.attempt == self.claim.attempts))
-        return body, body.problems(model)
+            with meshes.hulls(s):
+                return body, body.problems(model)
 
     def write(self, progress: dict[str, Any], row: dict[str, Any]) -> None:
         """A finished generation: its row and the progress summary, one write."""

@@ -33,7 +33,7 @@ def test_health_and_ready(client: httpx.Client) -> None:
     assert client.get("/healthz").json()["status"] == "ok"
     ready = client.get("/readyz")
     assert ready.status_code == 200
-    assert ready.json()["revision"] == ready.json()["head"] == "0005"
+    assert ready.json()["revision"] == ready.json()["head"] == "0006"
     assert ready.json()["kernels"] == "ok"
 
 
