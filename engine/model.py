@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
@@ -450,13 +451,17 @@ class RobotModel:
         end_effector_link: str | None = None,
         tool_offset: tuple[Any, Any] | None = None,
         name: str | None = None,
+        mesh_hulls: Callable[[str], FloatArray | None] | None = None,
     ) -> RobotModel:
         """The model of a URDF robot (see :mod:`engine.urdf`): the root link is the floating
         base, fixed joints are merged, the chain runs to ``end_effector_link`` (default: the only
         leaf after the last moving joint); ``tool_offset = (position (3,) m, rotation (3, 3))``
-        places the end effector in that link's frame. Raises :class:`engine.urdf.UrdfError` (a
-        ``ParameterError``) naming the URDF element at fault."""
-        params = urdf_to_dict(text, end_effector_link=end_effector_link, tool_offset=tool_offset, name=name)
+        places the end effector in that link's frame; ``mesh_hulls(filename)`` gives a ``<mesh>``
+        collision's convex hull (:func:`engine.urdf.urdf_to_dict`). Raises
+        :class:`engine.urdf.UrdfError` (a ``ParameterError``) naming the URDF element at fault."""
+        params = urdf_to_dict(
+            text, end_effector_link=end_effector_link, tool_offset=tool_offset, name=name, mesh_hulls=mesh_hulls
+        )
         try:
             return cls.from_dict(params)
         except ParameterError as exc:  # the URDF checks come first; this names the URDF element anyway

@@ -9,8 +9,8 @@ Reading (:func:`urdf_to_dict`, behind :meth:`engine.model.RobotModel.from_urdf`)
    and every step after is linear in the document. Every element the model needs (robot, links
    with their ``inertial``, joints with ``parent``, ``child``, ``origin``, ``axis``, ``limit``) is
    checked there, so each refusal names its element; numbers are written as XML Schema doubles
-   (no ``1_000``, no ``inf``). Geometry, materials, transmissions and the like are not used and
-   are left out.
+   (no ``1_000``, no ``inf``). ``<collision>`` elements are read there too (see below); visual
+   geometry, materials, transmissions and the like are not used and are left out.
 2. The checked elements are read by `yourdfpy <https://github.com/clemense/yourdfpy>`_ (origins
    as 4x4 transforms, URDF's fixed-axis roll-pitch-yaw), whose object model also writes the
    export.
@@ -37,6 +37,13 @@ force limit (N, prismatic, ``force_limit_n``), on continuous joints too; ``effor
 placeholder, what exports write when it is unknown) or none means no limit, a negative one is
 refused. ``velocity`` is not used: joint speed limits belong to the task.
 
+Collision geometry: each link's ``<collision>`` elements become collision shapes of its body
+(:mod:`engine.geometry`), their ``<origin>`` honoured: ``<box size>``, ``<cylinder radius
+length>``, ``<sphere radius>``, ``<capsule radius length>`` (along the origin's z axis, as in
+SDF), and ``<mesh filename scale>`` as the convex hull of the mesh, which a ``mesh_hulls``
+callable gives for its file name (the service resolves ``mesh://<id>`` to a stored mesh);
+without one, or for a name it does not know, the element is refused.
+
 Writing (:func:`dict_to_urdf`): one URDF link per body with its frame at the joint, parallel to
 the base at q = 0 (so every joint origin is a pure translation), the CoM as the ``inertial``
 origin, and the end effector as a massless link on a fixed joint. Unlimited revolute joints are
@@ -51,6 +58,7 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -59,7 +67,7 @@ from defusedxml import ElementTree as SafeET
 
 from engine.bounds import MAX_JOINTS, MAX_URDF_LINKS
 from engine.errors import ParameterError
-from engine.spatial import FloatArray, is_rotation
+from engine.spatial import FloatArray, is_rotation, matrix_to_quaternion
 
 MAX_URDF_BYTES = 1 << 20
 MAX_DEPTH = 32
@@ -162,20 +170,66 @@ def _count(links: list[ET.Element], joints: list[ET.Element]) -> None:
         raise UrdfError("<robot>", f"the URDF has {moving} moving joints (revolute, continuous, prismatic), at most {MAX_JOINTS}")
 
 
-def _checked_copy(root: ET.Element) -> ET.Element:
-    """Check what the model uses and return a copy with only those elements (geometry,
-    materials, transmissions, dynamics and the like are not read)."""
+#: A collision geometry's element and its numeric attributes (count of numbers each).
+COLLISION_GEOMETRY = {
+    "box": {"size": 3},
+    "cylinder": {"radius": 1, "length": 1},
+    "sphere": {"radius": 1},
+    "capsule": {"radius": 1, "length": 1},
+    "mesh": {"scale": 3},
+}
+
+
+def _collisions(link: ET.Element, where: str) -> list[dict[str, Any]]:
+    """A link's ``<collision>`` elements, checked: ``{"origin": (xyz, rpy), "type", numbers...}``."""
+    out = []
+    for collision in link.findall("collision"):
+        _check_origin(collision, where)
+        geometry = collision.find("geometry")
+        shapes = [child for child in geometry] if geometry is not None else []
+        if len(shapes) != 1 or shapes[0].tag not in COLLISION_GEOMETRY:
+            raise UrdfError(where, f"a <collision> needs one <geometry> of {', '.join(f'<{k}>' for k in COLLISION_GEOMETRY)}")
+        shape = shapes[0]
+        entry: dict[str, Any] = {"type": shape.tag}
+        for attr, count in COLLISION_GEOMETRY[shape.tag].items():
+            values = _numbers(shape, attr, count, where, required=shape.tag != "mesh")
+            if values is not None:
+                if any(v <= 0.0 for v in values):
+                    raise UrdfError(where, f"<{shape.tag} {attr}>: must be > 0")
+                entry[attr] = values if count > 1 else values[0]
+        if shape.tag == "mesh":
+            filename = shape.get("filename")
+            if not filename:
+                raise UrdfError(where, "<mesh> needs a filename")
+            entry["filename"] = filename
+        origin = collision.find("origin")
+        entry["origin"] = (
+            _numbers(origin, "xyz", 3, where) or [0.0, 0.0, 0.0],
+            _numbers(origin, "rpy", 3, where) or [0.0, 0.0, 0.0],
+        )
+        out.append(entry)
+    return out
+
+
+def _checked_copy(root: ET.Element) -> tuple[ET.Element, dict[str, list[dict[str, Any]]]]:
+    """Check what the model uses and return a copy with only those elements (visual geometry,
+    materials, transmissions, dynamics and the like are not read), and each link's checked
+    collision geometry."""
     robot_name = root.get("name")
     if not robot_name:
         raise UrdfError("<robot>", "the <robot> needs a name attribute")
     links, joints = root.findall("link"), root.findall("joint")
     _count(links, joints)
     out = ET.Element("robot", {"name": robot_name})
+    collisions: dict[str, list[dict[str, Any]]] = {}
     link_names: set[str] = set()
     for link in links:
         name = _name(link, "link", link_names)
         where = _link(name)
         kept = ET.SubElement(out, "link", {"name": name})
+        found = _collisions(link, where)
+        if found:
+            collisions[name] = found
         inertial = link.find("inertial")
         if inertial is None:
             continue  # a frame: no mass
@@ -215,7 +269,7 @@ def _checked_copy(root: ET.Element) -> ET.Element:
         for key in ("lower", "upper", "effort", "velocity"):
             _numbers(limit, key, 1, where)
         out.append(_strip(joint, ("parent", "child", "origin", "axis", "limit")))
-    return out
+    return out, collisions
 
 
 def _strip(element: ET.Element, keep: tuple[str, ...]) -> ET.Element:
@@ -227,9 +281,11 @@ def _strip(element: ET.Element, keep: tuple[str, ...]) -> ET.Element:
     return kept
 
 
-def _read(text: str | bytes) -> Any:
-    """The checked URDF as a ``yourdfpy.Robot`` (no meshes, no scene graph)."""
-    checked = ET.tostring(_checked_copy(_parse_safely(text)), encoding="utf-8")
+def _read(text: str | bytes) -> tuple[Any, dict[str, list[dict[str, Any]]]]:
+    """The checked URDF as a ``yourdfpy.Robot`` (no meshes, no scene graph), and its links'
+    collision geometry."""
+    copy, collisions = _checked_copy(_parse_safely(text))
+    checked = ET.tostring(copy, encoding="utf-8")
     import yourdfpy  # imported on first use: it brings trimesh along (about a second)
 
     try:
@@ -238,7 +294,7 @@ def _read(text: str | bytes) -> Any:
         )
     except Exception as exc:  # the checks above cover what it reads; anything else is still a URDF error
         raise UrdfError("<robot>", f"the URDF could not be read: {type(exc).__name__}: {exc}") from None
-    return urdf.robot
+    return urdf.robot, collisions
 
 
 # --- the tree: bodies (links joined by fixed joints) and the moving chain ------------------
@@ -321,16 +377,102 @@ def urdf_to_dict(
     end_effector_link: str | None = None,
     tool_offset: tuple[Any, Any] | None = None,
     name: str | None = None,
+    mesh_hulls: Callable[[str], FloatArray | None] | None = None,
 ) -> dict[str, Any]:
     """The model parameters (the schema of :meth:`engine.model.RobotModel.from_dict`) of a URDF
     serial arm on a floating base; see the module docstring. ``tool_offset = (position (3,) m,
-    rotation (3, 3))`` is the end-effector frame in ``end_effector_link``'s frame. Huge numbers
-    may give infinite parameters, which building the model refuses."""
+    rotation (3, 3))`` is the end-effector frame in ``end_effector_link``'s frame;
+    ``mesh_hulls(filename)`` gives a ``<mesh>`` collision's convex hull ``(V, 3)`` (the mesh's
+    own units, before ``scale``). Huge numbers may give infinite parameters, which building the
+    model refuses."""
+    robot, collisions = _read(text)
     with np.errstate(over="ignore", invalid="ignore"):
-        return _to_dict(_read(text), end_effector_link, tool_offset, name)
+        return _to_dict(robot, end_effector_link, tool_offset, name, collisions, mesh_hulls)
 
 
-def _to_dict(robot: Any, end_effector_link: str | None, tool_offset: tuple[Any, Any] | None, name: str | None) -> dict[str, Any]:
+def _rpy(rpy: list[float]) -> FloatArray:
+    """URDF's fixed-axis roll-pitch-yaw: ``Rz(yaw) Ry(pitch) Rx(roll)``."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def _collision_shapes(
+    entries: list[dict[str, Any]],
+    link_pose: FloatArray,
+    U: FloatArray,
+    com: FloatArray,
+    where: str,
+    mesh_hulls: Callable[[str], FloatArray | None] | None,
+) -> list[dict[str, Any]]:
+    """A link's collision geometry as shapes of its body in the model's frame (``U`` turns the
+    URDF body frame into the model's, ``com`` the body's CoM in the URDF body frame;
+    ``link_pose`` the link's frame in the body's)."""
+    shapes = []
+    for entry in entries:
+        xyz, rpy = entry["origin"]
+        T = np.eye(4)
+        T[:3, :3] = _rpy(rpy)
+        T[:3, 3] = xyz
+        T = link_pose @ T
+        R = U @ T[:3, :3]
+        p = U @ (T[:3, 3] - com)
+        quaternion = matrix_to_quaternion(R).tolist()
+        kind = entry["type"]
+        if kind == "sphere":
+            shapes.append({"type": "sphere", "radius_m": entry["radius"], "position_m": p.tolist()})
+        elif kind == "capsule":
+            half = 0.5 * entry["length"] * R[:, 2]
+            shapes.append(
+                {"type": "capsule", "radius_m": entry["radius"], "from_m": (p - half).tolist(), "to_m": (p + half).tolist()}
+            )
+        elif kind == "box":
+            shapes.append({"type": "box", "size_m": list(entry["size"]), "position_m": p.tolist(), "quaternion": quaternion})
+        elif kind == "cylinder":
+            shapes.append(
+                {
+                    "type": "cylinder",
+                    "radius_m": entry["radius"],
+                    "length_m": entry["length"],
+                    "position_m": p.tolist(),
+                    "quaternion": quaternion,
+                }
+            )
+        else:
+            filename = entry["filename"]
+            hull = mesh_hulls(filename) if mesh_hulls is not None else None
+            if hull is None:
+                raise UrdfError(
+                    where,
+                    f"<mesh filename={filename!r}>: a mesh collision needs its file, which a URDF upload does not carry: "
+                    "store the mesh (POST /v1/meshes) and name it mesh://<its id>, or use <box>, <cylinder>, <sphere>",
+                )
+            scale = np.asarray(entry.get("scale", [1.0, 1.0, 1.0]))
+            shapes.append(
+                {
+                    "type": "convex",
+                    "vertices_m": (np.asarray(hull, dtype=float) * scale).tolist(),
+                    "position_m": p.tolist(),
+                    "quaternion": quaternion,
+                }
+            )
+    return shapes
+
+
+def _to_dict(
+    robot: Any,
+    end_effector_link: str | None,
+    tool_offset: tuple[Any, Any] | None,
+    name: str | None,
+    collisions: dict[str, list[dict[str, Any]]] | None = None,
+    mesh_hulls: Callable[[str], FloatArray | None] | None = None,
+) -> dict[str, Any]:
     links = {link.name: link for link in robot.links}
     parent_joint: dict[str, Any] = {}
     children: dict[str, list[Any]] = {}
@@ -424,6 +566,14 @@ def _to_dict(robot: Any, end_effector_link: str | None, tool_offset: tuple[Any, 
     def members(top: str) -> list[tuple[Any, FloatArray]]:
         return [(links[k], pose[k]) for k in links_of[top]]  # the body's own link first
 
+    collisions = collisions or {}
+
+    def body_shapes(top: str, U: FloatArray, com: FloatArray) -> list[dict[str, Any]]:
+        out: list[dict[str, Any]] = []
+        for k in links_of[top]:
+            out += _collision_shapes(collisions.get(k, []), pose[k], U, com, _link(k), mesh_hulls)
+        return out
+
     base_mass, base_com, base_inertia = _body_inertia(members(root), _link(root), moving=False)
     U = np.eye(3)
     prev_com = base_com
@@ -455,6 +605,9 @@ def _to_dict(robot: Any, end_effector_link: str | None, tool_offset: tuple[Any, 
         effort = _effort(joint)
         if effort is not None:
             entry["force_limit_n" if joint.type == "prismatic" else "torque_limit_n_m"] = effort
+        shapes = body_shapes(joint.child, U, com)
+        if shapes:
+            entry["collision_shapes"] = shapes
         params_links.append(entry)
         prev_com = com
     T_ee = pose[ee_name]
@@ -474,9 +627,13 @@ def _to_dict(robot: Any, end_effector_link: str | None, tool_offset: tuple[Any, 
         label = f"{ee_name}_tool"
     params_links[-1]["b"] = (U @ (T_ee[:3, 3] - prev_com)).tolist()
     assert b_prev is not None
+    base: dict[str, Any] = {"name": root, "mass": base_mass, "inertia": base_inertia.tolist(), "b": b_prev.tolist()}
+    base_shapes = body_shapes(root, np.eye(3), base_com)
+    if base_shapes:
+        base["collision_shapes"] = base_shapes
     return {
         "name": name or robot.name,
-        "base": {"name": root, "mass": base_mass, "inertia": base_inertia.tolist(), "b": b_prev.tolist()},
+        "base": base,
         "links": params_links,
         "end_effector": {"name": label, "C_e": (U @ T_ee[:3, :3]).tolist()},
     }

@@ -313,3 +313,94 @@ def test_huge_numbers_are_refused_with_the_parameter_sets_bounds(change, field):
     with pytest.raises(UrdfError) as info:
         RobotModel.from_urdf(text)
     assert field in info.value.field + str(info.value), info.value
+
+
+COLLIDING = f"""<robot name="c">
+  <link name="base"><inertial><origin xyz="0.1 0 0"/><mass value="100"/>{INERTIA}</inertial>
+    <collision><origin xyz="0.1 0.2 -0.3" rpy="0.1 0.2 0.3"/><geometry><box size="0.8 0.6 0.4"/></geometry></collision></link>
+  <link name="l1"><inertial><origin xyz="0 0 0.2"/><mass value="2"/>{INERTIA}</inertial>
+    <collision><origin xyz="0 0 0.25" rpy="0.3 -0.2 0.5"/>
+      <geometry><cylinder radius="0.05" length="0.5"/></geometry></collision></link>
+  <link name="l2"><inertial><origin xyz="0.3 0 0" rpy="0 0.4 0"/><mass value="1.5"/>{INERTIA}</inertial>
+    <collision><origin xyz="0.3 0 0" rpy="0 1.5707963267948966 0"/>
+      <geometry><capsule radius="0.04" length="0.6"/></geometry></collision></link>
+  <link name="tip"><collision><origin xyz="0.05 0 0"/><geometry><sphere radius="0.03"/></geometry></collision></link>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0.4 0 0.2" rpy="0 0 0.3"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="0" velocity="0"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.5" rpy="0.2 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="0" velocity="0"/></joint>
+  <joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/><origin xyz="0.6 0 0"/><axis xyz="1 0 0"/>
+    <limit lower="-3" upper="3" effort="0" velocity="0"/></joint>
+  <link name="l3"><inertial><mass value="0.5"/>{INERTIA}</inertial></link>
+  <joint name="tip_mount" type="fixed"><parent link="l3"/><child link="tip"/><origin xyz="0.1 0 0" rpy="0 0 0.7"/></joint>
+</robot>"""
+
+
+def test_collision_geometry_is_placed_as_pinocchio_places_it(rng):
+    """Every <collision> of the URDF (a box on the base, a cylinder, a capsule along its origin's
+    z, a sphere on a fixed link merged into the last body), placed by our forward kinematics,
+    against Pinocchio's own collision model of the URDF (pin.buildGeomFromUrdfString, placed by
+    pin.updateGeometryPlacements): centres and axes to 1e-12 on random states. (urdfdom reads no
+    <capsule>: Pinocchio gets a cylinder at the same origin.)"""
+    import pinocchio as pin
+
+    model = RobotModel.from_urdf(COLLIDING, end_effector_link="tip")
+    assert [len(model.base.shapes)] + [len(link.shapes) for link in model.links] == [1, 1, 1, 1]
+    for_pinocchio = COLLIDING.replace("<capsule", "<cylinder")
+    pm = pinocchio_from_urdf(for_pinocchio)
+    gm = pin.buildGeomFromUrdfString(pm, for_pinocchio, pin.GeometryType.COLLISION)
+    theirs = {obj.name.rsplit("_", 1)[0]: i for i, obj in enumerate(gm.geometryObjects)}
+    for _ in range(10):
+        state = _random_state(rng, model)
+        fk = forward_kinematics(model, state)
+        centres = [fk.base_position, *fk.link_com_positions]
+        attitudes = [fk.base_attitude, *fk.link_attitudes]
+        data, gdata = pm.createData(), gm.createData()
+        pin.updateGeometryPlacements(pm, data, gm, gdata, pinocchio_state(pm, model, state))
+        for body, owner in enumerate(("base", "l1", "l2", "tip")):
+            (shape,) = model.base.shapes if body == 0 else model.links[body - 1].shapes
+            R, c = attitudes[body], centres[body]
+            placement = gdata.oMg[theirs[owner]]
+            np.testing.assert_allclose(c + R @ shape.position, placement.translation, atol=1e-12)
+            ours_axes = R @ shape.rotation
+            if shape.type == "box":
+                np.testing.assert_allclose(ours_axes, placement.rotation, atol=1e-12)
+            elif shape.type in ("cylinder", "capsule"):
+                np.testing.assert_allclose(
+                    ours_axes[:, 2] * np.sign(ours_axes[:, 2] @ placement.rotation[:, 2]), placement.rotation[:, 2], atol=1e-12
+                )
+    (box,) = model.base.shapes
+    (cylinder,), (capsule,), (sphere,) = (link.shapes for link in model.links)
+    np.testing.assert_allclose(2 * box.dims, [0.8, 0.6, 0.4])
+    assert (cylinder.dims[0], 2 * cylinder.dims[1]) == pytest.approx((0.05, 0.5))
+    assert (capsule.radius, 2 * capsule.dims[0]) == pytest.approx((0.04, 0.6))
+    assert sphere.radius == pytest.approx(0.03)
+
+
+@pytest.mark.parametrize(
+    ("geometry", "reason"),
+    [
+        ("<box size='1 0 1'/>", "must be > 0"),
+        ("<cylinder radius='0.1'/>", "length"),
+        ("<mesh filename='package://arm/meshes/l3.stl'/>", "mesh://"),
+        ("<cone radius='1'/>", "one <geometry>"),
+    ],
+)
+def test_bad_collision_geometry_names_the_link(geometry, reason):
+    link = _link("l3", f'<inertial><mass value="1"/>{INERTIA}</inertial><collision><geometry>{geometry}</geometry></collision>')
+    with pytest.raises(UrdfError) as info:
+        RobotModel.from_urdf(_third("revolute", "<axis xyz='1 0 0'/>", link))
+    assert info.value.element == '<link name="l3">' and reason in info.value.reason, info.value
+
+
+def test_a_mesh_collision_is_the_hull_the_caller_gives():
+    cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+    link = _link(
+        "l3",
+        f'<inertial><mass value="1"/>{INERTIA}</inertial><collision><geometry>'
+        "<mesh filename='mesh://abc' scale='0.1 0.2 0.3'/></geometry></collision>",
+    )
+    model = RobotModel.from_urdf(_third("revolute", "<axis xyz='1 0 0'/>", link), mesh_hulls={"mesh://abc": cube}.get)
+    (shape,) = model.links[2].shapes
+    assert shape.type == "convex"
+    np.testing.assert_allclose(np.abs(shape.vertices).max(axis=0), [0.1, 0.2, 0.3])

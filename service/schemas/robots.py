@@ -16,7 +16,7 @@ from pydantic_core import CoreSchema
 from engine import GJMResult, RobotModel, State
 from engine.errors import ParameterError
 from engine.geometry import MAX_SHAPES
-from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
+from engine.spatial import FloatArray, matrix_to_quaternion, quaternion_to_matrix
 from engine.trajectory import PAPER_Q0_DEG
 from engine.urdf import MAX_URDF_BYTES, UrdfError, urdf_element, urdf_to_dict
 from service.infra import jsonio
@@ -40,7 +40,7 @@ from service.schemas.common import (
     dotted_path,
     joint_positions,
 )
-from service.schemas.geometry import BodyShapeIn, Size, Size3
+from service.schemas.geometry import MESH_HULLS, BodyShapeIn, Size, Size3
 
 # --- robots -------------------------------------------------------------------------------
 
@@ -189,11 +189,29 @@ class RobotUrdfIn(Input):
             except ValueError as exc:
                 raise ParameterError("tool_attitude_quaternion", str(exc)) from None
             tool = (np.asarray(self.tool_position_m or [0.0, 0.0, 0.0], dtype=float), rotation)
-        params = urdf_to_dict(self.urdf, end_effector_link=self.end_effector_link, tool_offset=tool, name=self.name)
+        params = urdf_to_dict(
+            self.urdf, end_effector_link=self.end_effector_link, tool_offset=tool, name=self.name, mesh_hulls=stored_mesh_hull
+        )
         try:
             return model_of(params)
         except ParameterError as exc:
             raise UrdfError(urdf_element(params, exc.field), f"{exc.field}: {exc.reason}") from None
+
+
+#: How a URDF ``<mesh>`` collision names a stored mesh (``POST /v1/meshes``).
+MESH_URI = "mesh://"
+
+
+def stored_mesh_hull(filename: str) -> FloatArray | None:
+    """The hull of the stored mesh a URDF ``<mesh filename="mesh://<id>">`` names (None for any
+    other file name: the URDF importer refuses it, saying how to name a stored mesh)."""
+    resolve = MESH_HULLS.get()
+    if resolve is None or not filename.startswith(MESH_URI):
+        return None
+    try:
+        return resolve(filename[len(MESH_URI) :])
+    except ParameterError:
+        return None
 
 
 class JointOut(Output):

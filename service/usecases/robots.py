@@ -27,7 +27,7 @@ from service.infra.quota import check_quota
 from service.models import Robot, new_id, utcnow
 from service.schemas.common import located
 from service.schemas.robots import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams, RobotUrdfIn, model_of
-from service.usecases import rows
+from service.usecases import meshes, rows
 
 PRESET_ROBOT_ID = "table1"
 log = logging.getLogger("spacearm.api")
@@ -126,7 +126,7 @@ def create(session: Session, quota_bytes: int | None, body: RobotParams | RobotU
     """Store a robot given by parameters or by URDF (stored as the parameter set derived from it).
     The answer is built (and so checked) from the row before it is committed: a robot that could
     not be shown is never stored."""
-    with located(body, "body"):
+    with located(body, "body"), meshes.hulls(session):  # a URDF may name stored meshes
         model = body.to_engine()
     parameters = jsonio.clean(model.to_dict())
     check_quota(session, quota_bytes, len(jsonio.dumps(parameters)))
