@@ -605,6 +605,7 @@ def draw_clearance(data: PlanData, axes: Sequence[Axes]) -> None:
     task's clearance and the avoidance's influence distance; the closest approach over the plan
     (samples and between them) marked with its pair."""
     (ax,) = axes
+    ax.set_ylabel("distance [mm]")
     if data.clearance is None:
         ax.text(0.5, 0.5, "no collision geometry (no shapes on the robot)", transform=ax.transAxes, ha="center")
         return
@@ -619,7 +620,6 @@ def draw_clearance(data: PlanData, axes: Sequence[Axes]) -> None:
     if t_min is not None and d_min is not None:
         names = " and ".join(pair) if pair else "?"
         ax.plot([t_min], [d_min * 1e3], marker="v", color="C3", linestyle="none", label=f"closest: {names}, {d_min * 1e3:.3g} mm")
-    ax.set_ylabel("distance [mm]")
     _legend(ax)
 
 

@@ -781,18 +781,18 @@ def pair_speeds(posed, pairs, reach, bm, qd, out):
         out[p] = speed
 
 
-#: The velocity dampers aim this fraction of the influence band above the clearance: they hold the
-#: distance to first order at the samples, and the margin absorbs the motion's curvature between them.
-DAMPER_MARGIN = 0.1
+#: m: the velocity dampers aim this far above the clearance: they hold the distance to first order
+#: at the samples, and the margin absorbs the motion's curvature between them.
+DAMPER_MARGIN = 0.002
 
 
 @kernel
 def avoidance_rows(posed, pairs, buf, ch_slide, kin, bm, influence, clearance, gain, dt):
     """The velocity dampers of the pairs closer than ``influence`` (exact distances), as rows
     ``C qd <= d`` of the bounded inverse's QP in ``buf``'s ``rows``/``rhs``: ``-d_dot <= gain
-    (d - d_s) / dt`` with ``d_s`` the clearance plus :data:`DAMPER_MARGIN` of the band up to the
-    influence distance, so a step consumes at most the fraction ``gain`` of a pair's excess over
-    ``d_s`` (to first order; a pair below it is pushed back out). Returns how many."""
+    (d - d_s) / dt`` with ``d_s`` the clearance plus :data:`DAMPER_MARGIN`, so a step consumes
+    at most the fraction ``gain`` of a pair's excess over ``d_s`` (to first order; a pair below
+    it is pushed back out). Returns how many."""
     dist, exact, witness, rows, rhs = buf[1], buf[2], buf[3], buf[6], buf[7]
     count = 0
     for p in range(pairs.shape[0]):
@@ -802,7 +802,7 @@ def avoidance_rows(posed, pairs, buf, ch_slide, kin, bm, influence, clearance, g
             continue
         for j in range(rows.shape[1]):
             rows[count, j] = -rows[count, j]
-        rhs[count] = gain * (dist[p] - clearance - DAMPER_MARGIN * (influence - clearance)) / dt
+        rhs[count] = gain * (dist[p] - clearance - DAMPER_MARGIN) / dt
         count += 1
     return count
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 from engine.trajectory import PAPER_Q0_DEG, PAPER_TASK_PARAMS
 from service.errors import NotFoundError
 from service.schemas.common import PAPER_TASK_EXAMPLE
+from service.schemas.geometry import BoxIn, SceneIn
 from service.schemas.methods import MethodIn
 from service.schemas.paths import PoseIn, RasterPathIn, WaypointsPathIn
 from service.schemas.tasks import TaskIn, TaskPreset, TaskPresetList
@@ -49,6 +50,17 @@ WAYPOINT_INSPECTION = WaypointsPathIn(
     max_angular_acceleration_deg_s2=1.0,
 )
 
+#: The raster patch as the top face of a target spacecraft (a 0.6 m x 0.8 m x 0.3 m box), with a
+#: fixture beyond its far edge (a plate 4 cm thick, 40 cm wide, 10 cm tall) under the scan's turns.
+TARGET_SCENE = SceneIn(
+    obstacles=[
+        BoxIn(type="box", size_m=[0.6, 0.8, 0.3], position_m=[1.45, 0.0, -0.15]),
+        BoxIn(type="box", size_m=[0.04, 0.4, 0.1], position_m=[1.58, 0.0, 0.05]),
+    ],
+    influence_distance_m=0.1,
+    avoidance_gain=0.5,
+)
+
 PRESETS: dict[str, TaskPreset] = {
     "paper-line": TaskPreset(
         name="paper-line",
@@ -79,6 +91,17 @@ PRESETS: dict[str, TaskPreset] = {
         robot_id="table1",
         task=TaskIn(q0_deg=list(PAPER_Q0_DEG), path=RASTER_PATCH),
         method=MethodIn.model_validate({"name": "adaptive", "params": {"lambda_max": 0.02038, "epsilon": 0.1200}}),
+    ),
+    "raster-target": TaskPreset(
+        name="raster-target",
+        description="The raster-patch scan over the top face of a target spacecraft (a 0.6 m x 0.8 m x 0.3 m box) with "
+        "a fixture 10 cm tall beyond the face's far edge, under the scan's turns; robot table1-geometry (capsule links, "
+        "carrier cube), 20 mm clearance. Planned without avoidance (adaptive damping) the sensor link touches the "
+        "fixture at a turn; the bounded inverse's velocity dampers keep 20 mm, lifting the sensor over it (a few cm of "
+        "tracking error at the turns)",
+        robot_id="table1-geometry",
+        task=TaskIn(q0_deg=list(PAPER_Q0_DEG), path=RASTER_PATCH, clearance_m=0.02, scene=TARGET_SCENE),
+        method=MethodIn.model_validate({"name": "bounded", "params": {"lambda": 0.02}}),
     ),
     "waypoint-inspection": TaskPreset(
         name="waypoint-inspection",

@@ -44,13 +44,18 @@ class UnusableRobotError(ConflictError):
 
 
 def preset_robots() -> dict[str, Callable[[], RobotModel]]:
-    """The robots every database starts with: the paper's Table-1 robot and the URDF examples (a
+    """The robots every database starts with: the paper's Table-1 robot, the same with collision
+    geometry (``table1-geometry``: capsule links and a carrier cube) and the URDF examples (a
     7-joint arm on a spacecraft, a 3-joint arm), each built only when missing (reading a URDF
     imports its parser, about a second)."""
     from engine import table1_robot, urdf_robot
-    from engine.model import URDF_PRESETS
+    from engine.model import URDF_PRESETS, table1_with_geometry
 
-    return {PRESET_ROBOT_ID: table1_robot, **{name: functools.partial(urdf_robot, name) for name in URDF_PRESETS}}
+    return {
+        PRESET_ROBOT_ID: table1_robot,
+        "table1-geometry": table1_with_geometry,
+        **{name: functools.partial(urdf_robot, name) for name in URDF_PRESETS},
+    }
 
 
 def seed_presets(db: Database) -> None:

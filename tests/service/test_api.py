@@ -101,6 +101,8 @@ def test_task_presets(client: httpx.Client) -> None:
         "q0_m": None,
         "tracks": "pose",
         "joint_speed_limit_m_s": None,
+        "clearance_m": 0.0,
+        "scene": None,
     }
     _problem(client.get("/v1/task-presets/nope"), 404)
 

@@ -23,6 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.transforms import Bbox
 
 from engine import PlanSetup, RobotModel, State, generalized_jacobian, run_plan, table1_robot, urdf_robot
+from engine.model import table1_with_geometry
 from service import figures
 from service.schemas.methods import MethodOut
 from service.schemas.plans import PlanRequest, metrics_out
@@ -35,8 +36,9 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 def _plan(body: dict[str, Any], plan_id: str, model: RobotModel | None = None) -> figures.PlanData:
     request = PlanRequest.model_validate({"robot_id": "table1", **body})
     model = model or table1_robot()
-    result = run_plan(PlanSetup(model, request.task.to_engine(model), request.options()), request.method.to_engine())
-    return figures.PlanData(
+    task = request.task.to_engine(model)
+    result = run_plan(PlanSetup(model, task, request.options()), request.method.to_engine())
+    data = figures.PlanData(
         record_of(result, model),
         plan_id=plan_id,
         method=MethodOut.from_engine(result.inverse, result.secondary).model_dump(mode="json"),
@@ -44,20 +46,32 @@ def _plan(body: dict[str, Any], plan_id: str, model: RobotModel | None = None) -
         request=request.model_dump(mode="json"),
         robot=model.to_dict(),
     )
+    data.obstacles = task.scene.obstacles
+    return data
 
 
 @pytest.fixture(scope="module")
 def plans() -> dict[str, figures.PlanData]:
     started = time.perf_counter()
     paper = presets.PRESETS["paper-line"].task.model_dump()
-    raster = presets.PRESETS["raster-patch"]
-    assert raster.method is not None
+    raster, target = presets.PRESETS["raster-patch"], presets.PRESETS["raster-target"]
+    assert raster.method is not None and target.method is not None
     out = {
         "paper": _plan(
             {"task": paper, "method": {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}}}, "a" * 32
         ),
         "raster": _plan({"task": {**raster.task.model_dump(), "dt_s": 0.5}, "method": raster.method.model_dump()}, "b" * 32),
         "inverse": _plan({"task": paper, "method": {"name": "inverse"}}, "c" * 32),
+        # collision geometry: the clearance figure and the obstacles in the 3D scene
+        "target": _plan(
+            {
+                "robot_id": "table1-geometry",
+                "task": {**target.task.model_dump(), "dt_s": 0.5},
+                "method": target.method.model_dump(),
+            },
+            "d" * 32,
+            table1_with_geometry(),
+        ),
     }
     print(f"\nthree plans in {time.perf_counter() - started:.1f} s")
     return out
@@ -111,12 +125,18 @@ def check_text_inside_and_apart(fig: Figure, renderer: Any) -> None:
 
 
 @pytest.mark.parametrize("name", list(figures.PLAN_FIGURES))
-@pytest.mark.parametrize("key", ["paper", "raster", "inverse"])
+@pytest.mark.parametrize("key", ["paper", "raster", "inverse", "target"])
 def test_every_figure_has_units_and_legends_off_the_data(plans: dict[str, figures.PlanData], key: str, name: str) -> None:
     fig = figures.PLAN_FIGURES[name](plans[key])
     renderer = drawn(fig)
     check_text_inside_and_apart(fig, renderer)
     if name == "scene-3d":
+        labels = fig.legends[0].get_texts() if fig.legends else []
+        assert any(t.get_text() == "obstacles" for t in labels) == (key == "target")
+        return
+    if name == "clearance" and plans[key].clearance is None:  # no geometry: it says so
+        (ax,) = time_axes(fig)
+        assert "no collision geometry" in " ".join(t.get_text() for t in ax.texts)
         return
     axes = time_axes(fig)
     assert axes[-1].get_xlabel() == "time t [s]"

@@ -25,6 +25,7 @@ TIME_FIGURES = [
     "damping",
     "joint-torques",
     "carrier-wrench",
+    "clearance",
 ]
 PLAN_NAMES = [*TIME_FIGURES, "scene-3d"]
 

@@ -23,7 +23,7 @@ from service.openapi import reached_schemas, schema_refs
 OPTIONAL_IN_RESPONSES = {
     "PlanOut": {"trajectory", "replay"},  # sections chosen with `fields=`
     # robots with prismatic joints only
-    "Trajectory": {"joint_displacements_m", "joint_velocities_m_s", "joint_accelerations_m_s2", "joint_forces_n"},
+    "Trajectory": {"joint_displacements_m", "joint_velocities_m_s", "joint_accelerations_m_s2", "joint_forces_n", "clearance_m"},
     "Health": {"kernels", "database", "revision", "head"},  # liveness has only `status`
     "Problem": {"instance", "errors", "available"},  # `errors` only on a 422, `available` on a 406
     "MethodParams": {p.name for spec in METHODS.values() for p in spec.params},  # the method's own only

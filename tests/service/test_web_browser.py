@@ -143,6 +143,7 @@ def test_submit_paper_task_and_see_plan_figures(driver: Any, stack: Stack) -> No
         "damping",
         "joint-torques",
         "carrier-wrench",
+        "clearance",
         "scene-3d",
     ]
     wait_until(driver, lambda d: d.execute_script(ALL_IMAGES_LOADED, "#figures img"))
