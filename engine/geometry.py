@@ -180,11 +180,12 @@ def _convex_vertices(value: Any, field_name: str) -> FloatArray:
 def shape_from_dict(data: Mapping[str, Any], field_name: str = "shape") -> Shape:
     """A shape from its dictionary (see the module docstring); a ``ParameterError`` names the
     field at fault (``<field_name>.radius_m``)."""
+    prefix = f"{field_name}." if field_name else ""  # "" for a shape named by its caller
     if not isinstance(data, Mapping):
-        raise ParameterError(field_name, "expected an object")
+        raise ParameterError(field_name or "shape", "expected an object")
     kind = data.get("type")
     if kind not in SHAPE_TYPES:
-        raise ParameterError(f"{field_name}.type", f"must be one of {', '.join(SHAPE_TYPES)}")
+        raise ParameterError(f"{prefix}type", f"must be one of {', '.join(SHAPE_TYPES)}")
     allowed = {
         "sphere": {"type", "radius_m", "position_m"},
         "capsule": {"type", "radius_m", "from_m", "to_m"},
@@ -194,30 +195,30 @@ def shape_from_dict(data: Mapping[str, Any], field_name: str = "shape") -> Shape
     }[kind]
     extra = sorted(set(data) - allowed)
     if extra:
-        raise ParameterError(f"{field_name}.{extra[0]}", f"not a field of a {kind} (its fields: {', '.join(sorted(allowed))})")
+        raise ParameterError(f"{prefix}{extra[0]}", f"not a field of a {kind} (its fields: {', '.join(sorted(allowed))})")
 
     def point(name: str) -> FloatArray:
         value = data.get(name, [0.0, 0.0, 0.0] if name == "position_m" else None)
         if value is None:
-            raise ParameterError(f"{field_name}.{name}", "required")
-        return finite_array(value, (3,), f"{field_name}.{name}", MAX_LENGTH_M).copy()
+            raise ParameterError(f"{prefix}{name}", "required")
+        return finite_array(value, (3,), f"{prefix}{name}", MAX_LENGTH_M).copy()
 
     if kind == "capsule":
-        return capsule(point("from_m"), point("to_m"), _positive(data.get("radius_m"), f"{field_name}.radius_m"))
+        return capsule(point("from_m"), point("to_m"), _positive(data.get("radius_m"), f"{prefix}radius_m"))
     position = point("position_m")
     if kind == "sphere":
-        return Shape("sphere", _positive(data.get("radius_m"), f"{field_name}.radius_m"), position)
-    rotation = _rotation(data.get("quaternion"), f"{field_name}.quaternion")
+        return Shape("sphere", _positive(data.get("radius_m"), f"{prefix}radius_m"), position)
+    rotation = _rotation(data.get("quaternion"), f"{prefix}quaternion")
     if kind == "box":
-        size = finite_array(data.get("size_m"), (3,), f"{field_name}.size_m")
+        size = finite_array(data.get("size_m"), (3,), f"{prefix}size_m")
         for i, edge in enumerate(size):
-            _positive(edge, f"{field_name}.size_m[{i}]")
+            _positive(edge, f"{prefix}size_m[{i}]")
         return Shape("box", 0.0, position, rotation, 0.5 * size)
     if kind == "cylinder":
-        r = _positive(data.get("radius_m"), f"{field_name}.radius_m")
-        length = _positive(data.get("length_m"), f"{field_name}.length_m")
+        r = _positive(data.get("radius_m"), f"{prefix}radius_m")
+        length = _positive(data.get("length_m"), f"{prefix}length_m")
         return Shape("cylinder", 0.0, position, rotation, np.array([r, 0.5 * length, 0.0]))
-    vertices = _convex_vertices(data.get("vertices_m"), f"{field_name}.vertices_m")
+    vertices = _convex_vertices(data.get("vertices_m"), f"{prefix}vertices_m")
     return Shape("convex", 0.0, position, rotation, np.zeros(3), vertices)
 
 

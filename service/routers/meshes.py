@@ -20,7 +20,7 @@ MeshId = Annotated[str, Path(pattern=ID_PATTERN, description="a mesh's id (32 he
 UPLOAD_BODY = {
     "requestBody": {
         "required": True,
-        "description": "the file: binary or ASCII STL, or OBJ (at most 1 MiB)",
+        "description": "the file: binary or ASCII STL, or OBJ (at most 512 KiB)",
         "content": {
             media: {"schema": {"type": "string", "format": "binary"}}
             for media in ("model/stl", "model/obj", "application/octet-stream")
@@ -35,7 +35,7 @@ UPLOAD_BODY = {
     response_model=MeshOut,
     status_code=status.HTTP_201_CREATED,
     summary="Store a mesh (STL or OBJ) for the obstacles of task scenes",
-    description="The body is the file (at most 1 MiB); its format is `format`, else its `Content-Type` (`model/stl`, "
+    description="The body is the file (at most 512 KiB); its format is `format`, else its `Content-Type` (`model/stl`, "
     "`model/obj`). The mesh must be one closed surface (watertight) with finite coordinates within +-1 km (taken as "
     "metres), and its convex hull, which is the obstacle a scene checks, at most 512 vertices; otherwise a 422 says "
     "why. The same file is stored once: posting it again answers 200 with the stored mesh. 201 with the mesh and its "

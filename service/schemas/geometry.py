@@ -6,7 +6,7 @@ names a stored mesh (``/v1/meshes``), whose convex hull is the shape."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextvars import ContextVar
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Union
 
@@ -34,7 +34,11 @@ class ShapeSchema(Input):
     kind: ClassVar[str]
 
     def to_engine(self) -> Shape:
-        return shape_from_dict(self.model_dump(exclude_none=True))
+        return shape_from_dict(self.model_dump(exclude_none=True), "")
+
+    def locate(self, field: str | Sequence[str | int]) -> list[str | int]:
+        """As :meth:`Input.locate`, under the shape's type (as the schema's own errors are)."""
+        return [self.kind, *super().locate(field)]
 
 
 class SphereIn(ShapeSchema):
@@ -109,7 +113,7 @@ class MeshIn(ShapeSchema):
             data["position_m"] = self.position_m
         if self.quaternion is not None:
             data["quaternion"] = self.quaternion
-        return shape_from_dict(data)
+        return shape_from_dict(data, "")
 
 
 if TYPE_CHECKING:

@@ -28,6 +28,8 @@ from service.usecases import rows
 #: Media types of the formats (``Content-Type`` of an upload, besides ``?format=``).
 MEDIA_TYPES: dict[str, MeshFormat] = {"model/stl": "stl", "model/obj": "obj", "application/sla": "stl"}
 MIN_EXTENT_M = 1e-4
+#: Bytes of an uploaded mesh file, at most (the request limit is larger: this one is a 422 that says so).
+MAX_MESH_BYTES = 512 * 1024
 
 
 def _invalid(reason: str, where: str = "body") -> ApiValidationError:
@@ -41,6 +43,8 @@ def read(content: bytes, fmt: MeshFormat) -> tuple[Any, np.ndarray]:
 
     if not content:
         raise _invalid("the file is empty")
+    if len(content) > MAX_MESH_BYTES:
+        raise _invalid(f"the file has {len(content)} bytes, more than the {MAX_MESH_BYTES} a mesh may have")
     try:
         mesh = trimesh.load(io.BytesIO(content), file_type=fmt, force="mesh", process=True)
     except Exception as exc:  # trimesh raises many kinds for a file it cannot read
