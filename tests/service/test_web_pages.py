@@ -70,7 +70,7 @@ def test_robots_are_uploaded_named_and_deleted_from_the_page(web: httpx.Client) 
     assert options[robot_id] == "inspection arm" and options[second] == "inspection arm (2)"  # by name, in upload order
     assert options["table1"] == "table1"
     robots = [e.text_content().strip() for e in doc.xpath("//section[@id='robots']//td[@class='robot-name']")]
-    assert robots[:3] == ["table1", "arm7", "arm3"] and "inspection arm (2)" in robots
+    assert robots[:4] == ["table1", "table1-geometry", "arm7", "arm3"] and "inspection arm (2)" in robots
     assert not HEX_ID.search(text_of(doc, "//section[@id='robots']//table") + text_of(doc, "//select[@id='robot']"))
 
     # a plan and a job of the uploaded robot show its name too
