@@ -52,7 +52,7 @@ function quaternion(wxyz) {  // the API's [w, x, y, z]
   return wxyz && wxyz.every((v) => v !== null) ? new THREE.Quaternion(wxyz[1], wxyz[2], wxyz[3], wxyz[0]) : new THREE.Quaternion();
 }
 
-/** The carrier: a box of its mass and inertia (principal axes from the scene), drawn at the base pose. */
+/** The carrier: its collision box, or a box of its mass and inertia (principal axes from the scene), drawn at the base pose. */
 function carrierMesh(carrier) {
   const [a, b, c] = carrier.size_m;
   const geometry = new THREE.BoxGeometry(a, b, c);
@@ -64,20 +64,20 @@ function carrierMesh(carrier) {
   principal.quaternion.setFromRotationMatrix(new THREE.Group().matrix.set(
     axes[0][0], axes[0][1], axes[0][2], 0, axes[1][0], axes[1][1], axes[1][2], 0, axes[2][0], axes[2][1], axes[2][2], 0, 0, 0, 0, 1));
   principal.add(box, edges);
+  principal.position.set(...carrier.com_offset_m);  // a collision box's centre from the carrier's CoM
   group.add(principal);
   return group;
 }
 
-/** Obstacles of plans with geometry: spheres and boxes (the scene's `obstacles`). */
+/** Obstacles of plans with geometry: triangle meshes in the world frame (the scene's `obstacles`). */
 function obstacleMeshes(obstacles) {
-  const material = new THREE.MeshStandardMaterial({color: COLORS.obstacle, transparent: true, opacity: 0.45});
+  const material = new THREE.MeshStandardMaterial({color: COLORS.obstacle, transparent: true, opacity: 0.45, side: THREE.DoubleSide});
   return obstacles.map((o) => {
-    const mesh = o.type === "sphere"
-      ? new THREE.Mesh(new THREE.SphereGeometry(o.radius_m, 24, 16), material)
-      : new THREE.Mesh(new THREE.BoxGeometry(...o.size_m), material);
-    mesh.position.set(...o.center_m);
-    if (o.quaternion) { mesh.quaternion.copy(quaternion(o.quaternion)); }
-    return mesh;
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute("position", new THREE.Float32BufferAttribute(o.positions_m.flat(), 3));
+    geometry.setIndex(o.faces.flat());
+    geometry.computeVertexNormals();
+    return new THREE.Mesh(geometry, material);
   });
 }
 

@@ -4,7 +4,7 @@ route): what the page cannot take from the JSON API directly. The page reads the
 the robot from ``GET /v1/robots/{robot_id}``; the arm's joint positions need the forward
 kinematics, computed here for at most :data:`MAX_FRAMES` evenly spread samples
 (:func:`service.figures.arm_frames`, one batch of :func:`engine.kinematics.kinematics_batch`),
-with the carrier's box and the plan's obstacles."""
+with the carrier's box and the plan's obstacles (triangle meshes, world frame)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from engine.geometry import Shape
 from service import figures
 from service.errors import NotFoundError
 from service.infra.db import Database
@@ -40,13 +41,33 @@ def carrier_box(base: dict[str, Any]) -> dict[str, Any]:
     return {"size_m": np.round(size, 4).tolist(), "axes": np.round(axes, 6).tolist(), "com_offset_m": [0.0, 0.0, 0.0]}
 
 
-def obstacles(request: dict[str, Any]) -> list[dict[str, Any]]:
-    """The obstacles of the plan's task, for plans that have geometry (spheres
-    ``{"type": "sphere", "center_m", "radius_m"}`` and boxes ``{"type": "box", "center_m",
-    "size_m", "quaternion"}``); none today."""
-    task = request.get("task") or {}
-    found = task.get("obstacles") or []
-    return [o for o in found if isinstance(o, dict) and o.get("type") in ("sphere", "box")]
+def triangles(shape: Shape) -> dict[str, Any]:
+    """A shape (world frame) as a triangle mesh for the page: ``positions_m (V, 3)`` and
+    ``faces (F, 3)`` (trimesh's primitives, or the hull of a convex shape's vertices)."""
+    import trimesh  # for the 3D view only
+
+    if shape.type == "sphere":
+        mesh = trimesh.creation.icosphere(subdivisions=2, radius=shape.radius)
+    elif shape.type == "capsule":
+        mesh = trimesh.creation.capsule(height=2.0 * shape.dims[0], radius=shape.radius, count=[16, 8])
+    elif shape.type == "box":
+        mesh = trimesh.creation.box(extents=2.0 * shape.dims)
+    elif shape.type == "cylinder":
+        mesh = trimesh.creation.cylinder(radius=shape.dims[0], height=2.0 * shape.dims[1], sections=24)
+    else:
+        assert shape.vertices is not None  # a convex shape
+        mesh = trimesh.convex.convex_hull(shape.vertices)
+    positions = shape.position + np.asarray(mesh.vertices) @ shape.rotation.T
+    return {"positions_m": np.round(positions, DECIMALS).tolist(), "faces": np.asarray(mesh.faces).tolist()}
+
+
+def carrier_of(base: dict[str, Any]) -> dict[str, Any]:
+    """The carrier's collision box when the robot has one, else the box of its inertia."""
+    box = base.get("collision_box")
+    if isinstance(box, dict) and box.get("size_m"):
+        centre = box.get("center_m") or [0.0, 0.0, 0.0]
+        return {"size_m": list(box["size_m"]), "axes": np.eye(3).tolist(), "com_offset_m": list(centre)}
+    return carrier_box(base)
 
 
 def scene(db: Database, plan_id: str) -> dict[str, Any]:
@@ -58,7 +79,7 @@ def scene(db: Database, plan_id: str) -> dict[str, Any]:
         if row is None:
             raise NotFoundError("plan", plan_id)
         data = figures.plan_data(plan_id, functools.partial(figure_cases.plan_data, session, row))
-        request = dict(row.request or {})
+        shapes = figure_cases.obstacles(session, row.request)
     index, lines = figures.arm_frames(data, MAX_FRAMES)
     points = np.round(np.stack(lines), DECIMALS) if lines else np.zeros((0, 0, 3))
     robot = data.robot or {}
@@ -66,6 +87,6 @@ def scene(db: Database, plan_id: str) -> dict[str, Any]:
         "plan_id": plan_id,
         "joints": int(data.q.shape[1]) if data.q.ndim == 2 else 0,
         "frames": {"index": index.tolist(), "t_s": data.t[index].tolist(), "points_m": points.tolist()},
-        "carrier": carrier_box(robot.get("base") or {}),
-        "obstacles": obstacles(request),
+        "carrier": carrier_of(robot.get("base") or {}),
+        "obstacles": [triangles(shape) for shape in shapes],
     }

@@ -220,6 +220,17 @@ def test_3d_view_page_and_scene(web: httpx.Client) -> None:
     moments = np.array([b * b + c * c, a * a + c * c, a * a + b * b]) * base["mass"] / 12
     np.testing.assert_allclose(np.sort(moments), np.sort(np.linalg.eigvalsh(np.array(base["inertia"]))), rtol=1e-3)
     assert scene["obstacles"] == []
+    # a plan with geometry: its collision box and its obstacles as triangle meshes (world frame)
+    preset = web.get("/v1/task-presets/raster-target").json()
+    task = {**preset["task"], "dt_s": 1.0}
+    body = {"robot_id": preset["robot_id"], "task": task, "method": preset["method"]}
+    target = web.post("/v1/plans", params={"fields": ""}, json=body).json()["id"]
+    scene = web.get(f"/plans/{target}/scene.json").json()
+    assert scene["carrier"]["size_m"] == [1.5, 1.5, 1.5]
+    boxes = [np.array(o["positions_m"]) for o in scene["obstacles"]]
+    assert [len(o["faces"]) for o in scene["obstacles"]] == [12, 12]  # two boxes
+    np.testing.assert_allclose(boxes[0].min(axis=0), [1.15, -0.4, -0.3], atol=1e-9)
+    np.testing.assert_allclose(boxes[1].max(axis=0), [1.6, 0.2, 0.1], atol=1e-9)
     assert web.get(f"/plans/{'0' * 32}/scene.json").status_code == 404
     assert web.get(f"/plans/{'0' * 32}/view").status_code == 404
     paths = web.get("/openapi.json").json()["paths"]
