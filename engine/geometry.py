@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -254,28 +255,6 @@ class Scene:
         if not (math.isfinite(self.avoidance_gain) and 0.0 < self.avoidance_gain <= 1.0):
             raise ParameterError("avoidance_gain", "must be in (0, 1]")
 
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> Scene:
-        """``{"obstacles": [...], "clearance_m", "influence_distance_m", "avoidance_gain"}``."""
-        if data is None:
-            return cls()
-        if not isinstance(data, Mapping):
-            raise ParameterError("scene", "expected an object")
-        return cls(
-            obstacles=shapes_from_list(data.get("obstacles"), "obstacles"),
-            clearance=float(data.get("clearance_m", 0.0)),
-            influence_distance=float(data.get("influence_distance_m", 0.1)),
-            avoidance_gain=float(data.get("avoidance_gain", 0.5)),
-        )
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "obstacles": [s.to_dict() for s in self.obstacles],
-            "clearance_m": self.clearance,
-            "influence_distance_m": self.influence_distance,
-            "avoidance_gain": self.avoidance_gain,
-        }
-
 
 #: Owner of a shape in pair names: the carrier, a link, or obstacle ``i``.
 CARRIER = "carrier"
@@ -300,8 +279,12 @@ class Geometry:
         return self.pairs.shape[0] > 0
 
     def pair_names(self, index: int) -> tuple[str, str]:
-        a, b = self.pairs[index]
-        return self.owners[int(a)], self.owners[int(b)]
+        return self.names[index]
+
+    @cached_property
+    def names(self) -> tuple[tuple[str, str], ...]:
+        """The owners of every pair, in the pairs' order."""
+        return tuple((self.owners[int(a)], self.owners[int(b)]) for a, b in self.pairs)
 
     def kernel_args(self) -> tuple[FloatArray, FloatArray, np.ndarray, FloatArray]:
         return self.shapes, self.vertices, self.pairs, self.settings
@@ -360,11 +343,12 @@ def build_geometry(
 
 def posed(shape: Shape, rotation: ArrayLike | None = None, position: ArrayLike | None = None) -> FloatArray:
     """The kernel row of ``shape`` moved by ``x -> rotation x + position`` (its frame's pose)."""
-    out = np.empty(kernels.SHAPE_WIDTH)
+    out = np.empty((1, kernels.SHAPE_WIDTH))
     R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
     p = np.zeros(3) if position is None else np.asarray(position, dtype=float)
-    kernels.pose_shape(shape.row(0), np.ascontiguousarray(R), np.ascontiguousarray(p), out)
-    return out
+    # as the planner poses a body's shape: body 0 with attitude R and CoM p
+    kernels.pose_into(shape.row(0)[None], 0, R[None], p[None], np.eye(3), np.zeros(3), out, 0)
+    return out[0]
 
 
 @dataclass(frozen=True)

@@ -270,7 +270,7 @@ class PlanSetup:
             linear_joint_speed_limit=task.linear_joint_speed_limit,
             tracks=task.tracks,
             clearance=task.scene.clearance,
-            pair_names=[self.geometry.pair_names(p) for p in range(self.geometry.pairs.shape[0])],
+            pair_names=self.geometry.names,
         )
 
 

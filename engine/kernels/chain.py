@@ -164,6 +164,31 @@ def kinematics(ch, q, A0, origin, about_com, kin):
 
 
 @kernel
+def system_com(masses, total_mass, com, out):
+    """``out (3,)``: the system CoM of the bodies' CoMs ``com (n+1, 3)`` (masses ``(n+1,)``)."""
+    for r in range(3):
+        acc = 0.0
+        for i in range(masses.shape[0]):
+            acc += masses[i] * com[i, r]
+        out[r] = acc / total_mass
+
+
+@kernel
+def fastest_joints(joints, peak):
+    """The revolute joint and the prismatic joint with the largest ``peak (n,)`` (of speed,
+    torque, ...), -1 where there is none of that kind (``joints``: :attr:`Chain.joints`)."""
+    best = -1
+    best_lin = -1
+    for j in range(peak.shape[0]):
+        if joints[j, SLIDE] != 0.0:
+            if best_lin < 0 or peak[j] > peak[best_lin]:
+                best_lin = j
+        elif best < 0 or peak[j] > peak[best]:
+            best = j
+    return best, best_lin
+
+
+@kernel
 def _add_body(inertias, m, i, att, x, y, z, T, tmp):
     """``T += A_i I_i A_i^T + m (|rho|^2 I - rho rho^T)`` with ``rho = (x, y, z)``: body i's
     inertia about the system CoM. (Helpers in the loops take the arrays they need, not the
@@ -193,12 +218,7 @@ def angular_map(ch, kin, g):
     T = scratch[0]
     tmp = scratch[1]
     n = jaxis.shape[0]
-    M = ch.total_mass
-    for r in range(3):
-        acc = 0.0
-        for i in range(n + 1):
-            acc += ch.masses[i] * com[i, r]
-        r_g[r] = acc / M
+    system_com(ch.masses, ch.total_mass, com, r_g)
     for r in range(3):
         for c in range(3):
             T[r, c] = 0.0

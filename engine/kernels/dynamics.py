@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.kernels.chain import EFFORT, SLIDE, gjm, gjm_buffers, kinematics, kinematics_buffers
+from engine.kernels.chain import EFFORT, SLIDE, fastest_joints, gjm, gjm_buffers, kinematics, kinematics_buffers, system_com
 from engine.kernels.jit import kernel
 from engine.kernels.linalg import solve3_spd
 from engine.kernels.spline import clamped_spline
@@ -115,11 +115,7 @@ def inverse_dynamics(ch, kin, twist, qd, qdd, work, tau, force, torque, base_acc
     M = ch.total_mass
     r_g = vec[0]
     rho = vec[1]
-    for r in range(3):
-        g = 0.0
-        for i in range(n + 1):
-            g += ch.masses[i] * com[i, r]
-        r_g[r] = g / M
+    system_com(ch.masses, M, com, r_g)
     for r in range(3):
         for c in range(3):
             H[r, c] = 0.0
@@ -364,14 +360,7 @@ def trajectory_dynamics(ch, dt, count, end_rate, work, record):
                 over_joint = j  # the joint furthest over its limit at the first sample where one is
         if over_joint >= 0 and over_time != over_time:
             over_time = t[k]
-    best = -1
-    best_lin = -1
-    for j in range(n):
-        if ch.joints[j, SLIDE] != 0.0:
-            if best_lin < 0 or peak[j] > peak[best_lin]:
-                best_lin = j
-        elif best < 0 or peak[j] > peak[best]:
-            best = j
+    best, best_lin = fastest_joints(ch.joints, peak)
     return (
         ok,
         peak[best] if best >= 0 else 0.0,

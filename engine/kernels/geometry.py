@@ -8,7 +8,7 @@ its body (``WORLD`` for an obstacle, 0 the carrier, ``i`` link ``i``), its kind,
 pose in the body frame (position relative to the body's CoM, rotation matrix row-major whose
 columns are the shape's axes), its dimensions and its bounding radius about its position
 (margin included). A posed shape has the same row with the pose in the frame where distances
-are taken (:func:`pose_shape`).
+are taken (:func:`pose_into`).
 
 The distance between two cores is computed by the Gilbert-Johnson-Keerthi algorithm on their
 support functions (Gilbert, Johnson and Keerthi 1988; the sub-simplex search by Voronoi regions
@@ -128,8 +128,17 @@ def support(shape, vertices, dx, dy, dz, out):
 @kernel
 def gjk_buffers():
     """Scratch of :func:`core_distance`: ``(W, A, B (4, 3) simplex points and their shapes'
-    points, lam (4,) barycentric weights, tmp (8, 3))``."""
-    return (np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3)), np.empty(4), np.empty((8, 3)))
+    points, lam (4,) barycentric weights, tmp (8, 3), kept (3, 4, 3) and kept_lam (4,): the
+    simplex of the last step)``."""
+    return (
+        np.empty((4, 3)),
+        np.empty((4, 3)),
+        np.empty((4, 3)),
+        np.empty(4),
+        np.empty((8, 3)),
+        np.empty((3, 4, 3)),
+        np.empty(4),
+    )
 
 
 @kernel
@@ -328,7 +337,7 @@ def core_distance(sa, sb, vertices, buf, witness):
     """The distance between the cores of posed shapes ``sa`` and ``sb`` (0 when they
     intersect), their closest points into ``witness (2, 3)`` (``sa``'s, then ``sb``'s). ``buf``:
     :func:`gjk_buffers`."""
-    W, A, B, lam, tmp = buf
+    W, A, B, lam, tmp, kept, kept_lam = buf
     pa = tmp[0]
     pb = tmp[1]
     v = tmp[2]
@@ -360,6 +369,13 @@ def core_distance(sa, sb, vertices, buf, witness):
                     repeat = True
             if repeat:
                 break
+        kept_count = count  # the simplex before the step: a step that gains nothing is undone
+        for k in range(count):
+            kept_lam[k] = lam[k]
+            for r in range(3):
+                kept[0, k, r] = W[k, r]
+                kept[1, k, r] = A[k, r]
+                kept[2, k, r] = B[k, r]
         W[count, 0] = wx
         W[count, 1] = wy
         W[count, 2] = wz
@@ -379,7 +395,16 @@ def core_distance(sa, sb, vertices, buf, witness):
             nz += lam[k] * W[k, 2]
         new = nx * nx + ny * ny + nz * nz
         if count > 1 and not new < vv:
-            break  # no progress (rounding): keep this simplex's point
+            # no progress (rounding, or a nearly flat tetrahedron whose faces the sign tests
+            # misjudge): the last step's simplex and point stand
+            count = kept_count
+            for k in range(count):
+                lam[k] = kept_lam[k]
+                for r in range(3):
+                    W[k, r] = kept[0, k, r]
+                    A[k, r] = kept[1, k, r]
+                    B[k, r] = kept[2, k, r]
+            break
         v[0] = nx
         v[1] = ny
         v[2] = nz
@@ -481,18 +506,6 @@ def shape_distance(sa, sb, vertices, buf, witness):
     else:
         core = core_distance(sa, sb, vertices, buf, witness)
     return core - sa[RADIUS] - sb[RADIUS]
-
-
-@kernel
-def pose_shape(shape, R, p, out):
-    """``out``: ``shape`` posed by the rigid transform ``x -> R x + p`` of its body's frame
-    (``R (3, 3)``, ``p (3,)`` the body CoM)."""
-    for c in range(SHAPE_WIDTH):
-        out[c] = shape[c]
-    for r in range(3):
-        out[POS + r] = p[r] + R[r, 0] * shape[POS] + R[r, 1] * shape[POS + 1] + R[r, 2] * shape[POS + 2]
-        for c in range(3):
-            out[ROT + 3 * r + c] = R[r, 0] * shape[ROT + c] + R[r, 1] * shape[ROT + 3 + c] + R[r, 2] * shape[ROT + 6 + c]
 
 
 @kernel

@@ -49,7 +49,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.kernels.chain import LOWER, SLIDE, UPPER, angular_map, gjm, gjm_buffers, kinematics, kinematics_buffers
+from engine.kernels.chain import (
+    LOWER,
+    SLIDE,
+    UPPER,
+    angular_map,
+    fastest_joints,
+    gjm,
+    gjm_buffers,
+    kinematics,
+    kinematics_buffers,
+)
 from engine.kernels.dynamics import trajectory_buffers, trajectory_dynamics
 from engine.kernels.geometry import (
     HIT_D,
@@ -340,8 +350,6 @@ def check_interval(ch, shapes, vertices, a, b, pair, t0, dt, q0, qd, A0, com_w, 
     smallest, and the first below the clearance; a bound below it at the finest level counts as
     a contact at that sub-interval's middle)."""
     stats, stack = cbuf[9], cbuf[12]
-    if 0.5 * (d0 + d1 - speed * dt) >= clearance:
-        return
     stack[0, 0] = 0.0
     stack[0, 1] = dt
     stack[0, 2] = d0
@@ -729,14 +737,7 @@ def simulate(
             metrics[i] = np.nan
         metrics[BASE_ROT_MAX] = np.nan
         metrics[BASE_ROT_FINAL] = np.nan
-    best = -1
-    best_lin = -1
-    for j in range(n):
-        if ch.joints[j, SLIDE] != 0.0:
-            if best_lin < 0 or peak[j] > peak[best_lin]:
-                best_lin = j
-        elif best < 0 or peak[j] > peak[best]:
-            best = j
+    best, best_lin = fastest_joints(ch.joints, peak)
     metrics[MAX_SPEED] = peak[best] if best >= 0 else 0.0
     metrics[MAX_SPEED_JOINT] = best
     metrics[MAX_LIN_SPEED] = peak[best_lin] if best_lin >= 0 else 0.0
