@@ -168,6 +168,10 @@ class PlanSetup:
     model: RobotModel
     task: CartesianTask
     options: PlanOptions = field(default_factory=PlanOptions)
+    #: The robot that moves when it differs from the controller's ``model`` (a sampled robot of
+    #: :mod:`engine.uncertainty`; set by :meth:`under`), and its joints at the start.
+    plant: RobotModel | None = field(default=None, compare=False)
+    start: FloatArray | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         try:
@@ -210,16 +214,31 @@ class PlanSetup:
     def retimed(self, duration: float) -> PlanSetup:
         """The same setup with the task's path retimed to ``duration`` s (not checked again: the
         robot, the start and the limits are the same)."""
+        return self._copy(task=self.task.with_duration(duration))
+
+    def under(self, plant: RobotModel, start: FloatArray) -> PlanSetup:
+        """The same setup run on ``plant`` from joints ``start (n,)`` while the controller keeps
+        this setup's model (same task and path; not checked again: a start outside the limits is
+        found by the plan)."""
+        return self._copy(plant=plant, start=np.ascontiguousarray(start, dtype=float))
+
+    def _copy(self, **values: Any) -> PlanSetup:
         setup = object.__new__(PlanSetup)
-        for name, value in (("model", self.model), ("task", self.task.with_duration(duration)), ("options", self.options)):
+        fields = {"model": self.model, "task": self.task, "options": self.options, "plant": self.plant, "start": self.start}
+        for name, value in {**fields, **values}.items():
             object.__setattr__(setup, name, value)
         return setup
+
+    @property
+    def robot(self) -> RobotModel:
+        """The robot that moves: the plant when there is one, else the model."""
+        return self.plant if self.plant is not None else self.model
 
     @cached_property
     def geometry(self) -> Geometry:
         """The robot's shapes and the task's obstacles as the kernels take them, with the pairs
         that are checked (none without shapes)."""
-        model = self.model
+        model = self.robot
         return build_geometry(
             [link.shapes for link in model.links], model.base.shapes, [link.name for link in model.links], self.task.scene
         )
@@ -237,7 +256,8 @@ class PlanSetup:
         q0 = np.array(task.q0, dtype=float)
         return (
             self.model.chain,
-            q0,
+            self.robot.chain,
+            q0 if self.start is None else self.start,
             samples.twists,
             samples.p_des,
             samples.A_des,
@@ -251,14 +271,18 @@ class PlanSetup:
             self.speed_limits,
         )
 
-    def kernel_args(self, inverse: Inverse, params: FloatArray, *, record: bool = False) -> tuple[object, ...]:
+    def kernel_args(
+        self, inverse: Inverse, params: FloatArray, *, record: bool = False, given: FloatArray | None = None
+    ) -> tuple[object, ...]:
         """The leading arguments of the planner kernels (always of the same types, so each kernel
         is compiled once) for ``inverse`` with the parameter rows ``params``; the dynamics are
         computed for a kept plan (``record``) and, for metrics only, when the robot has an
-        effort limit."""
+        effort limit. ``given (N+1, n)``: joint rates applied instead of the inverse's (an
+        open-loop replay)."""
         head, tail = self._args
         geometry = self.geometry.kernel_args()
-        return (*head, int(inverse.method_id), params, *tail, bool(record or self.model.effort_limited), geometry)
+        rates = np.empty((0, self.model.n_joints)) if given is None else np.ascontiguousarray(given, dtype=float)
+        return (*head, int(inverse.method_id), params, *tail, bool(record or self.model.effort_limited), geometry, rates)
 
     def metrics(self, raw: FloatArray) -> Metrics[Column]:
         """The metrics of the kernel's rows ``raw (B, N_METRICS)`` of plans of this setup."""
@@ -706,3 +730,34 @@ def verdicts(raw: FloatArray, setups: Sequence[PlanSetup]) -> list[tuple[Metrics
         metrics = setup.metrics(row[None]).item(0)
         out.append((metrics, *_verdict(metrics, setup.options, setup.model, setup.geometry)))
     return out
+
+
+def evaluate_traced(
+    setups: Sequence[PlanSetup], inverse: Inverse, *, given: FloatArray | None = None, threads: int | None = None
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """One parameter set of ``inverse`` on each setup (of one task: a plan's sampled robots),
+    every sample kept but only the tracking errors returned: the kernel's metrics rows
+    ``(S, N_METRICS)`` and the position ``(S, N+1)`` m and attitude ``(S, N+1)`` rad errors.
+    ``given (N+1, n)``: joint rates applied instead of the inverse's. Spread over ``threads``."""
+    params = kernel_param_rows(inverse, 1)[0]
+    count = setups[0].task.n_steps + 1
+    n, rows = setups[0].model.n_joints, TRACKS[setups[0].task.tracks]
+    raw = np.empty((len(setups), plan_kernels.N_METRICS))
+    position, attitude = np.empty((len(setups), count)), np.empty((len(setups), count))
+    workers = max(1, threads if threads is not None else default_threads())
+
+    def run(i: int) -> None:
+        trace = _trace_arrays(count, n, rows)
+        t_spline, _, qd_spline, qdd, tau, force, torque = dynamics_kernels.trajectory_buffers(count, n, count)
+        dyn = (t_spline, trace[0], qd_spline, qdd, tau, force, torque)
+        args = setups[i].kernel_args(inverse, params, record=True, given=given)
+        plan_kernels.simulate(*args, True, trace, dyn, raw[i])
+        position[i], attitude[i] = trace[9], trace[10]
+
+    if workers == 1 or len(setups) == 1:
+        for i in range(len(setups)):
+            run(i)
+    else:
+        for f in [_pool(workers).submit(run, i) for i in range(len(setups))]:
+            f.result()
+    return raw, position, attitude

@@ -131,6 +131,13 @@ class PlanData:
         self.dynamics = Dynamics(record, self.q.shape)
         #: ``(N+1,)`` m, the smallest distance of the checked pairs; None without geometry
         self.clearance = _arr(record["clearance"]) if "clearance" in record else None
+        #: ``{"open" | "closed": (position (N+1, 3) m, attitude (N+1, 3) rad)}``: the errors' smallest,
+        #: median and largest over the sampled robots of a plan under uncertainty; empty without one
+        self.robust_bands = {
+            loop: (_arr(record[f"robust_{loop}_position_band"], 2), _arr(record[f"robust_{loop}_attitude_band"], 2))
+            for loop in ("open", "closed")
+            if f"robust_{loop}_position_band" in record
+        }
         #: the task's obstacles (engine shapes, world frame), set by whoever loads the plan
         self.obstacles: tuple[Shape, ...] = ()
 
@@ -623,6 +630,27 @@ def draw_clearance(data: PlanData, axes: Sequence[Axes]) -> None:
     _legend(ax)
 
 
+def draw_robustness(data: PlanData, axes: Sequence[Axes]) -> None:
+    """The nominal plan's position and attitude errors with the band of the sampled robots
+    (smallest to largest over the samples, median dashed), open loop and closed loop."""
+    position, attitude = axes
+    position.set_ylabel("position error [mm]")
+    attitude.set_ylabel("attitude error [deg]")
+    if not data.robust_bands:
+        position.text(0.5, 0.5, "planned without uncertainty (no sampled robots)", transform=position.transAxes, ha="center")
+        return
+    for ax, nominal, index, scale in (
+        (position, data.position_error, 0, 1e3),
+        (attitude, data.attitude_error, 1, np.degrees(1.0)),
+    ):
+        for (loop, bands), color in zip(data.robust_bands.items(), ("C1", "C2"), strict=False):
+            band = np.where(np.isfinite(bands[index]), bands[index], np.nan) * scale
+            ax.fill_between(data.t, band[:, 0], band[:, 2], color=color, alpha=0.25, linewidth=0, label=f"{loop} loop: samples")
+            _line(ax, data.t, band[:, 1], color=color, linestyle="--", label=f"{loop} loop: median")
+        _line(ax, data.t, nominal * scale, color="C0", label="nominal plan")
+    _legend(position)
+
+
 SCENE_INSTANTS = 5
 #: The carrier's drift is drawn magnified to this fraction of the scene's size (and labelled so).
 DRIFT_SCENE_FRACTION = 0.15
@@ -820,6 +848,9 @@ PLAN_FIGURE_SPECS: dict[str, PlanFigure] = {
         "Wrench on the carrier at joint 1 (carrier frame)", "Wrench on the carrier", 2, draw_carrier_wrench
     ),
     "clearance": PlanFigure("Clearance: smallest distance between shapes", "Clearance over time", 1, draw_clearance),
+    "robustness": PlanFigure(
+        "Tracking errors on the sampled robots (uncertainty)", "Robustness: errors of the sampled robots", 2, draw_robustness
+    ),
     "scene-3d": PlanFigure(
         "3D view: end-effector path, arm and carrier", "3D view: path, arm and carrier (Fig. 10)", 0, lambda d, a: None
     ),

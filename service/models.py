@@ -78,6 +78,7 @@ class Plan(Base):
     message: Mapped[str] = mapped_column(Text)
     metrics: Mapped[dict[str, Any]] = mapped_column(JSON)
     trajectory_data: Mapped[bytes] = mapped_column(LargeBinary)  # service.infra.storage.pack_trajectory
+    robustness: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)  # RobustnessOut, under uncertainty
     replay: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
     elapsed_s: Mapped[float] = mapped_column(Float)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow, index=True)
@@ -114,7 +115,8 @@ class JobGeneration(Base):
     """One finished generation of a tuning job's GA, appended as it ends (the job's history:
     progress, event stream, convergence figure). ``seq`` numbers the records of one ``attempt``
     from 1 (an event's id is ``<attempt>.<seq>``); ``phase`` is the method the GA tunes and
-    ``role`` whether it is the job's own method or the DLS baseline."""
+    ``role`` whether it is the job's own method or the DLS baseline; ``stage`` ``ga`` or
+    ``refine`` (a record of the refinement after the GA)."""
 
     __tablename__ = "tuning_job_generations"
 
@@ -123,6 +125,7 @@ class JobGeneration(Base):
     seq: Mapped[int] = mapped_column(Integer, primary_key=True)
     phase: Mapped[str] = mapped_column(String(16))
     role: Mapped[str] = mapped_column(String(16))
+    stage: Mapped[str] = mapped_column(String(16), default="ga", server_default="ga")  # "ga" or "refine"
     generation: Mapped[int] = mapped_column(Integer)
     best: Mapped[float | None] = mapped_column(Float, nullable=True)
     mean: Mapped[float | None] = mapped_column(Float, nullable=True)

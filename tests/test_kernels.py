@@ -232,12 +232,13 @@ def test_kernel_stops_at_a_non_finite_twist(robot, task):
         np.full(6, task.joint_speed_limit),
         True,
         (np.zeros((0, 19)), np.zeros((1, 3)), np.zeros((0, 2), dtype=np.int64), np.array([0.0, 0.1, 0.5])),  # no geometry
+        np.empty((0, 6)),  # no given rates
         False,
         trace,
         dynamics_kernels.trajectory_buffers(task.n_steps + 1, 6, 1),
         metrics,
     )
-    plan_kernels.simulate(robot.chain, task.q0.copy(), twists, *args)
+    plan_kernels.simulate(robot.chain, robot.chain, task.q0.copy(), twists, *args)
     assert metrics[plan_kernels.FINITE] == 0.0 and metrics[plan_kernels.T_DIVERGED] == 7 * task.dt
     assert math.isnan(metrics[plan_kernels.POS_MAX]) and math.isinf(metrics[plan_kernels.MAX_SPEED])
     assert metrics[plan_kernels.DYNAMICS] == 0.0 and math.isnan(metrics[plan_kernels.MAX_TORQUE])  # none for a diverged plan

@@ -388,8 +388,29 @@ def check_interval(ch, shapes, vertices, a, b, pair, t0, dt, q0, qd, A0, com_w, 
 
 
 @kernel
+def same_chain(a, b):
+    """Whether chains ``a`` and ``b`` have the same masses, inertias and CoM offsets (their
+    joints, axes and end-effector frame are shared by construction)."""
+    if a.total_mass != b.total_mass or a.masses.shape[0] != b.masses.shape[0]:
+        return False
+    for i in range(a.masses.shape[0]):
+        if a.masses[i] != b.masses[i]:
+            return False
+        for r in range(3):
+            if a.b[i, r] != b.b[i, r]:
+                return False
+            if i > 0 and a.a[i - 1, r] != b.a[i - 1, r]:
+                return False
+            for c in range(3):
+                if a.inertias[i, r, c] != b.inertias[i, r, c]:
+                    return False
+    return True
+
+
+@kernel
 def simulate(
     ch,
+    plant,
     q0,
     twists,
     p_des,
@@ -405,6 +426,7 @@ def simulate(
     speed_limit,
     dynamics,
     geo,
+    given,
     record,
     trace,
     dyn,
@@ -417,6 +439,13 @@ def simulate(
     ``speed_limit (n,)`` each joint's speed limit (rad/s or m/s; the ``bounded`` inverse's box);
     ``geo`` the collision geometry ``(shapes, vertices, pairs, (clearance, influence distance,
     avoidance gain))`` (no pairs: none).
+
+    ``ch`` is the controller's model and ``plant`` the robot that moves (the same chain for a plan;
+    a sampled robot of :mod:`engine.uncertainty` for a closed loop under uncertainty): the
+    inverse uses the controller's GJM at the measured joints and carrier attitude, while the
+    carrier turns by the plant's momentum balance and the pose error, clearance and torques are
+    the plant's. ``given (N+1, n)`` (or ``(0, n)``: none) replaces the inverse's joint rates (an
+    open-loop replay of a plan's joint motion).
 
     ``metrics (N_METRICS,)`` is always written. With ``record``, ``trace`` (a tuple of
     ``q (N+1, n)``, ``qd``, ``base_p (N+1, 3)``, ``base_A (N+1, 3, 3)``, ``ee_p``, ``ee_A``,
@@ -434,8 +463,15 @@ def simulate(
     N = twists.shape[0] - 1
     eye = np.eye(3)
     zero = np.zeros(3)
-    kin = kinematics_buffers(n)
+    kin = kinematics_buffers(n)  # the plant's (the controller's too when they are the same)
     g = gjm_buffers(n)
+    separate = not same_chain(ch, plant)
+    kin_c = kin
+    g_c = g
+    if separate:
+        kin_c = kinematics_buffers(n)
+        g_c = gjm_buffers(n)
+    replaying = given.shape[0] > 0
     kin_m = kinematics_buffers(n)
     g_m = gjm_buffers(n)
     sv = svd_buffers(n, rows)
@@ -469,7 +505,7 @@ def simulate(
     avoid_rows = checking and bounded
     avoid_null = checking and redundant and objective == CLEARANCE
     cbuf = clearance_buffers(n, shapes.shape[0], n_pairs)
-    cwork = clearance_work(ch, n)
+    cwork = clearance_work(plant, n)
     slide = cwork[7]
     stats = cbuf[9]
     reset_stats(stats)
@@ -481,10 +517,13 @@ def simulate(
     m_rows = 0
     qp_buf = qp_buffers(n, n_pairs)
 
-    kinematics(ch, q, eye, zero, True, kin)
-    gjm(ch, kin, g)
+    kinematics(plant, q, eye, zero, True, kin)
+    gjm(plant, kin, g)
+    if separate:
+        kinematics(ch, q, eye, zero, True, kin_c)
+        gjm(ch, kin_c, g_c)
     _, com_b, _, _, ee_p_b, ee_A_b = kin
-    J_b = g[0] if rows == 6 else g[0][:3]  # the tracked rows of the GJM (a view: gjm writes in place)
+    J_b = g_c[0] if rows == 6 else g_c[0][:3]  # the tracked rows of the GJM (a view: gjm writes in place)
     com_w = np.empty(3)
     for r in range(3):
         com_w[r] = -com_b[0, r]  # the base starts at the world origin with the identity attitude
@@ -581,7 +620,7 @@ def simulate(
                         and (0.5 * (prev_dist[p] + dist[p] - step_speed[p] * dt) < clearance)
                     ):
                         check_interval(
-                            ch,
+                            plant,
                             shapes,
                             vertices,
                             pairs[p, 0],
@@ -601,23 +640,29 @@ def simulate(
                             cwork,
                         )
             if avoid_rows:
-                m_rows = avoidance_rows(cbuf[0], pairs, cbuf, slide, kin, g[1], influence, clearance, avoid_gain, dt)
+                m_rows = avoidance_rows(cbuf[0], pairs, cbuf, slide, kin, g_c[1], influence, clearance, avoid_gain, dt)
         for r in range(3):
             xdot_b[r] = A0[0, r] * xdot_w[0] + A0[1, r] * xdot_w[1] + A0[2, r] * xdot_w[2]
             xdot_b[r + 3] = A0[0, r] * xdot_w[3] + A0[1, r] * xdot_w[4] + A0[2, r] * xdot_w[5]
         ok, _ = jacobi_svd(J_b, sv, k % REFRESH_EVERY == 0)
         s = sv[2]
-        if ok:
+        if replaying:
+            ok = True
+            for j in range(n):
+                qd[j] = given[k, j]
+                ok = ok and np.isfinite(qd[j])
+            damping[:] = np.nan
+        elif ok:
             apply_inverse(method, params, J_b, sv[1], s, sv[3], xdot_b, qd, damping, inv_scratch)
             if redundant:
                 if bounded:
                     for j in range(n):
                         shift[j] = qd[j]
                 if avoid_null:
-                    clearance_push(cbuf[0], pairs, cbuf, slide, kin, g[1], influence, objective_gain, null_work[3])
+                    clearance_push(cbuf[0], pairs, cbuf, slide, kin, g_c[1], influence, objective_gain, null_work[3])
                 elif objective == CLEARANCE:
                     null_work[3][:] = 0.0  # no geometry: nothing to push apart
-                _secondary(objective, objective_gain, sv, g, q, centre, qd, null_work)
+                _secondary(objective, objective_gain, sv, g_c, q, centre, qd, null_work)
                 if bounded:
                     for j in range(n):
                         shift[j] = qd[j] - shift[j]
@@ -699,9 +744,12 @@ def simulate(
                 for c in range(3):
                     A_prev[r, c] = A0[r, c]
         # Joints: the paper's explicit update. Base attitude: Magnus along the joint line.
-        advance(ch, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work)
+        advance(plant, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work)
         for j in range(n):
             q[j] = q_next[j]
+        if separate:
+            kinematics(ch, q, eye, zero, True, kin_c)
+            gjm(ch, kin_c, g_c)
         _, com_b, _, _, ee_p_b, ee_A_b = kin
 
     if record:
@@ -758,7 +806,7 @@ def simulate(
     metrics[T_COLLISION] = stats[T_HIT]
     metrics[COLLISION_DISTANCE] = stats[HIT_D]
     metrics[GEOMETRY] = 1.0 if checking else 0.0
-    _dynamics_metrics(ch, dt, N, finite and dynamics, qd, dyn, record, metrics)
+    _dynamics_metrics(plant, dt, N, finite and dynamics, qd, dyn, record, metrics)
 
 
 @kernel
@@ -817,6 +865,7 @@ def empty_trace(n, rows=6):
 @kernel
 def evaluate_range(
     ch,
+    plant,
     q0,
     twists,
     p_des,
@@ -832,6 +881,7 @@ def evaluate_range(
     speed_limit,
     dynamics,
     geo,
+    given,
     start,
     stop,
     out,
@@ -846,6 +896,7 @@ def evaluate_range(
     for b in range(start, stop):
         simulate(
             ch,
+            plant,
             q0,
             twists,
             p_des,
@@ -861,6 +912,7 @@ def evaluate_range(
             speed_limit,
             dynamics,
             geo,
+            given,
             False,
             trace,
             dyn,

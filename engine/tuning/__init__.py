@@ -31,14 +31,28 @@ from engine.tuning.ga import (
     GenerationRecord,
     decode,
 )
-from engine.tuning.problem import TASK_AGGREGATIONS, Chunk, MapFn, TuningProblem, check_bounds, dask_map, evaluate_chunk
+from engine.tuning.problem import (
+    ROBUST_STATISTICS,
+    TASK_AGGREGATIONS,
+    Chunk,
+    MapFn,
+    Robust,
+    TuningProblem,
+    check_bounds,
+    dask_map,
+    evaluate_chunk,
+)
+from engine.tuning.refine import Refinement, starting_points
+from engine.tuning.refine import refine as refine_best
 from engine.tuning.termination import Termination
+from engine.uncertainty import Uncertainty
 
 __all__ = [
     "INFEASIBLE_FITNESS",
     "MAX_BITS_PER_GENE",
     "MAX_GENERATIONS",
     "MAX_POPULATION",
+    "ROBUST_STATISTICS",
     "TASK_AGGREGATIONS",
     "BinaryGA",
     "Chunk",
@@ -46,6 +60,8 @@ __all__ = [
     "GASettings",
     "GenerationRecord",
     "MapFn",
+    "Refinement",
+    "Robust",
     "Termination",
     "TuneProgress",
     "TuneResult",
@@ -73,6 +89,7 @@ class TuneProgress:
     mean_objective_b: float  # mean over this generation's feasible individuals; inf if none
     feasible: int  # feasible individuals in this generation
     best_params: dict[str, float]
+    phase: str = "ga"  # "ga", or "refine" (a round of the pattern search after the GA)
 
 
 @dataclass(frozen=True)
@@ -91,6 +108,8 @@ class TuneResult:
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     cache_hits: int = 0  # individuals whose genome had been planned before (not planned again)
     warnings: list[str] = field(default_factory=list)  # e.g. an optimum on a search bound
+    ga_objective_b: float = math.inf  # the GA's own best B, before the refinement (= best without it)
+    nominal_objective_b: float = math.nan  # robust problems: B of the best parameters on the nominal robot
 
 
 #: A tuned parameter within this fraction of its search range of a bound is "on the bound".
@@ -129,40 +148,71 @@ def run(
     map_fn: MapFn = map,
     chunks: int = 1,
     seed: int | None = None,
+    refine: bool = True,
 ) -> TuneResult:
     """Drive ``ga`` on ``problem`` until ``termination``: ask, evaluate, tell, one generation at
-    a time; ``callback(progress)`` after each. A run stopped inside a generation keeps the best of
-    the generations done; a run with no feasible individual is a failed result, not an exception."""
+    a time; ``callback(progress)`` after each. Then, with ``refine`` and a feasible best,
+    Nelder-Mead from it (:func:`engine.tuning.refine.refine`), the same callback after each of
+    its records (``phase`` ``refine``). A run stopped inside a generation keeps the best of the
+    generations done; a run with no feasible individual is a failed result, not an exception."""
     start = time.perf_counter()
     interrupted = False
+    search: Refinement | None = None
+
+    def report(record: GenerationRecord, planned: int) -> None:
+        if callback is not None:
+            callback(
+                TuneProgress(
+                    record.generation,
+                    termination.generations,
+                    planned * problem.n_tasks * problem.samples,
+                    record.best,
+                    record.mean,
+                    record.feasible,
+                    record.best_params,
+                    record.phase,
+                )
+            )
+
     while True:
         try:
             objective_b = problem.evaluate(ga.ask(), map_fn=map_fn, chunks=chunks, stop=termination)
         except EvaluationStoppedError:
             interrupted = True
             break
-        record = ga.tell(objective_b)
-        if callback is not None:
-            callback(
-                TuneProgress(
-                    record.generation,
-                    termination.generations,
-                    ga.planned * problem.n_tasks,
-                    record.best,
-                    record.mean,
-                    record.feasible,
-                    record.best_params,
-                )
-            )
-        if termination.finished(record.generation):
+        done = ga.tell(objective_b)
+        report(done, ga.planned)
+        if termination.finished(done.generation):
             break
-    return result_of(problem, ga, termination, time.perf_counter() - start, seed, interrupted)
+    if refine and not interrupted and not termination.is_set() and math.isfinite(ga.best_objective_b):
+        evaluated, values = ga.evaluated()
+        starts = [
+            ({k: float(v[i]) for k, v in evaluated.items()}, float(values[i]))
+            for i in starting_points(problem.bounds, evaluated, values)
+        ]
+        search = refine_best(
+            problem.bounds,
+            starts,
+            ga.generation + 1,
+            lambda params: problem.evaluate(params, map_fn=map_fn, chunks=1, stop=termination),
+            on_record=lambda record, planned: report(record, ga.planned + planned),
+            stop=termination,
+        )
+        interrupted = search.stopped
+    return result_of(problem, ga, termination, time.perf_counter() - start, seed, interrupted, search)
 
 
 def result_of(
-    problem: TuningProblem, ga: BinaryGA, termination: Termination, elapsed_s: float, seed: int | None, interrupted: bool
+    problem: TuningProblem,
+    ga: BinaryGA,
+    termination: Termination,
+    elapsed_s: float,
+    seed: int | None,
+    interrupted: bool,
+    search: Refinement | None = None,
 ) -> TuneResult:
-    """The result of a run that ended (``interrupted``: stopped inside a generation)."""
+    """The result of a run that ended (``interrupted``: stopped inside a generation), the
+    refinement's rounds (``search``) after the GA's generations."""
     method = problem.method.name
     if not ga.history:
         return TuneResult(
@@ -179,33 +229,39 @@ def result_of(
             stopped=True,
             bounds=problem.bounds,
         )
-    best_params = ga.best_params
-    feasible = math.isfinite(ga.best_objective_b)
+    best_params, best_b = ga.best_params, ga.best_objective_b
+    if search is not None and search.best_objective_b < best_b:
+        best_params, best_b = search.best_params, search.best_objective_b
+    feasible = math.isfinite(best_b)
     stopped = interrupted or termination.reason is not None
-    last = ga.history[-1].generation
+    history = list(ga.history) + (list(search.history) if search is not None else [])
+    last = history[-1].generation
     if not feasible:
         message = "no feasible parameters found: every individual broke the joint speed limit or diverged"
     elif interrupted:
-        message = f"stopped during generation {last + 1}"
+        message = f"stopped during {'round' if search is not None else 'generation'} {last + 1}"
     elif stopped:
         message = f"stopped after generation {last}"
     else:
         message = "ok"
+    planned = ga.planned + (search.planned if search is not None else 0)
     return TuneResult(
         method=method,
         best_params=best_params,
-        best_objective_b=ga.best_objective_b,
+        best_objective_b=best_b,
         best_metrics=problem.metrics(best_params),
-        history=list(ga.history),
-        evaluations=ga.planned * problem.n_tasks,
+        history=history,
+        evaluations=planned * problem.n_tasks * problem.samples,
         elapsed_s=elapsed_s,
         seed=seed,
         success=feasible,
         message=message,
         stopped=stopped,
         bounds=problem.bounds,
-        cache_hits=ga.cache_hits,
+        cache_hits=ga.cache_hits + (search.cache_hits if search is not None else 0),
         warnings=bound_warnings(method, best_params, problem.bounds) if feasible else [],
+        ga_objective_b=ga.best_objective_b,
+        nominal_objective_b=problem.nominal().objective_b(best_params) if feasible and problem.robust is not None else math.nan,
     )
 
 
@@ -228,6 +284,9 @@ def tune(
     map_fn: MapFn = map,
     chunks: int = 1,
     termination: Termination | None = None,
+    refine: bool = True,
+    uncertainty: Uncertainty | None = None,
+    robust_statistic: str = "mean",
     **option_fields: Any,
 ) -> TuneResult:
     """Tune ``method``'s parameters with the paper's binary GA to minimise ``B``.
@@ -236,6 +295,9 @@ def tune(
     ``aggregation``, ``attitude_term``, see :meth:`PlanOptions.of`). With several tasks the
     objective is their mean (``task_aggregation="mean"``) or worst (``"max"``). ``termination``
     (default: after ``generations``) may be cancelled from another thread or carry a deadline.
+    ``refine`` runs the pattern search after the GA (``False``: the paper's GA alone). With
+    ``uncertainty`` the tuning is robust: ``B`` is ``robust_statistic`` (mean, p95, max) over the
+    sampled robots in closed loop (:class:`engine.tuning.problem.Robust`).
     """
     settings = GASettings(population, generations, crossover_probability, mutation_probability, bits_per_gene, elitism)
     if chunks < 1:
@@ -247,6 +309,8 @@ def tune(
         bounds=bounds,
         options=options or PlanOptions.of(**option_fields),
         task_aggregation=task_aggregation,
+        uncertainty=uncertainty,
+        robust_statistic=robust_statistic,
     )
     ga = BinaryGA(problem.bounds, settings, seed)
     return run(
@@ -257,6 +321,7 @@ def tune(
         map_fn=map_fn,
         chunks=chunks,
         seed=seed if isinstance(seed, int) else None,
+        refine=refine,
     )
 
 

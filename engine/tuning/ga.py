@@ -96,6 +96,7 @@ class GenerationRecord:
     mean: float  # mean B of the feasible individuals of this generation (inf if none)
     feasible: int
     best_params: dict[str, float]
+    phase: str = "ga"  # "ga", or "refine" for a round of the refinement after it
 
 
 def decode(bits: np.ndarray, bounds: Mapping[str, tuple[float, float]], bits_per_gene: int) -> dict[str, FloatArray]:
@@ -193,6 +194,12 @@ class BinaryGA:
     @property
     def best_objective_b(self) -> float:
         return float(self._best.objective_b) if self._best is not None else math.inf
+
+    def evaluated(self) -> tuple[dict[str, FloatArray], FloatArray]:
+        """Every parameter set evaluated so far ``{name: (K,)}`` and its ``B (K,)``."""
+        width = self.settings.bits_per_gene * len(self.bounds)
+        bits = np.array(list(self.known), dtype=float).reshape(len(self.known), width)
+        return decode(bits, self.bounds, self.settings.bits_per_gene), np.array(list(self.known.values()), dtype=float)
 
     @property
     def best_params(self) -> dict[str, float]:

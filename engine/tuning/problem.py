@@ -21,10 +21,14 @@ from engine.inverses import Method, method_spec
 from engine.metrics import Metrics
 from engine.model import RobotModel
 from engine.planner import PlanOptions, PlanSetup, Stop, evaluate
+from engine.robustness import sampled_setups, statistic
 from engine.spatial import FloatArray
 from engine.trajectory import CartesianTask
+from engine.uncertainty import Uncertainty, draw
 
 TASK_AGGREGATIONS = ("mean", "max")
+#: What a robust tuning minimises over the samples' B.
+ROBUST_STATISTICS = ("mean", "p95", "max")
 
 MapFn = Callable[[Callable[[Any], Any], Iterable[Any]], Iterable[Any]]
 
@@ -56,6 +60,17 @@ def check_bounds(method: str, bounds: Mapping[str, Sequence[float]] | None) -> d
 
 
 @dataclass(frozen=True)
+class Robust:
+    """Robust tuning: ``B`` of a parameter set is ``statistic`` (mean, p95 or max) of its ``B``
+    on each sampled robot in closed loop (infinite if any sample breaks a limit: eq. 19's ``P_l``
+    over the samples); ``setups[k][s]`` runs task ``k`` on sample ``s``."""
+
+    uncertainty: Uncertainty
+    statistic: str
+    setups: tuple[tuple[PlanSetup, ...], ...]
+
+
+@dataclass(frozen=True)
 class TuningProblem:
     """Minimise ``B`` of ``method`` over ``bounds`` on the checked ``setups`` (one per task,
     sharing their options), the tasks' values combined by their mean or worst
@@ -65,6 +80,7 @@ class TuningProblem:
     method: Method
     bounds: dict[str, tuple[float, float]]
     task_aggregation: str = "mean"
+    robust: Robust | None = None
 
     @classmethod
     def build(
@@ -76,9 +92,12 @@ class TuningProblem:
         bounds: Mapping[str, Sequence[float]] | None = None,
         options: PlanOptions | None = None,
         task_aggregation: str = "mean",
+        uncertainty: Uncertainty | None = None,
+        robust_statistic: str = "mean",
     ) -> TuningProblem:
         """The problem, checked once: errors name ``tasks[i].<field>``, ``bounds.<name>``,
-        ``method``, ``task_aggregation`` or an option."""
+        ``method``, ``task_aggregation``, ``robust_statistic`` or an option. With
+        ``uncertainty`` it is the robust problem (:class:`Robust`)."""
         task_list = (tasks,) if isinstance(tasks, CartesianTask) else tuple(tasks)
         if not task_list:
             raise ParameterError("tasks", "at least one task is needed")
@@ -86,22 +105,47 @@ class TuningProblem:
             raise ParameterError("task_aggregation", f"must be one of {', '.join(TASK_AGGREGATIONS)}")
         search = check_bounds(method, bounds)
         setups = PlanSetup.of_tasks(model, task_list, options or PlanOptions())
-        return cls(tuple(setups), method_spec(method), search, task_aggregation)
+        robust = None
+        if uncertainty is not None:
+            if robust_statistic not in ROBUST_STATISTICS:
+                raise ParameterError("robust_statistic", f"must be one of {', '.join(ROBUST_STATISTICS)}")
+            samples = draw(uncertainty, model)
+            robust = Robust(uncertainty, robust_statistic, tuple(tuple(sampled_setups(s, samples)) for s in setups))
+        return cls(tuple(setups), method_spec(method), search, task_aggregation, robust)
+
+    def nominal(self) -> TuningProblem:
+        """The same problem on the nominal robot only."""
+        return TuningProblem(self.setups, self.method, self.bounds, self.task_aggregation)
+
+    @property
+    def samples(self) -> int:
+        """Robots each parameter set is planned on (1: the nominal one)."""
+        return 1 if self.robust is None else self.robust.uncertainty.samples
 
     @property
     def n_tasks(self) -> int:
         return len(self.setups)
 
     def plan_steps(self) -> int:
-        """The plan-steps of one evaluation of every task (``n_steps + 1`` samples each)."""
-        return sum(s.task.n_steps + 1 for s in self.setups)
+        """The plan-steps of one evaluation of every task (``n_steps + 1`` samples each) on
+        every sampled robot."""
+        return sum(s.task.n_steps + 1 for s in self.setups) * self.samples
 
     def evaluate_tasks(self, params: Mapping[str, FloatArray], stop: Stop | None = None) -> FloatArray:
         """``B (B, n_tasks)`` of the parameter sets ``params`` (``{name: (B,)}``) on each task,
         in this process (``stop`` skips the plans not yet started: EvaluationStoppedError)."""
         inverse = self.method(**params)
         size = next(iter(params.values())).shape[0]
-        columns = [s.metrics(evaluate(s, inverse, size, stop=stop)).objective_b for s in self.setups]
+        if self.robust is None:
+            columns = [s.metrics(evaluate(s, inverse, size, stop=stop)).objective_b for s in self.setups]
+        else:
+            columns = [
+                statistic(
+                    np.stack([s.metrics(evaluate(s, inverse, size, stop=stop)).objective_b for s in sampled], axis=1),
+                    self.robust.statistic,
+                )
+                for sampled in self.robust.setups
+            ]
         return np.stack(columns, axis=1)
 
     def evaluate(
@@ -121,8 +165,12 @@ class TuningProblem:
             return np.max(per_task, axis=1)
         return np.mean(per_task, axis=1)
 
+    def objective_b(self, params: Mapping[str, float]) -> float:
+        """``B`` of one parameter set (robust: over the samples)."""
+        return float(self.evaluate({k: np.array([v]) for k, v in params.items()})[0])
+
     def metrics(self, params: Mapping[str, float]) -> list[Metrics[float]]:
-        """The metrics of one parameter set on each task."""
+        """The metrics of one parameter set on each task (the nominal robot)."""
         inverse = self.method(**{k: np.array([v]) for k, v in params.items()})
         return [s.metrics(evaluate(s, inverse, 1)).item(0) for s in self.setups]
 

@@ -34,6 +34,7 @@ from service.schemas.methods import MethodIn, MethodOut, SecondaryIn
 from service.schemas.paths import PathSchema
 from service.schemas.robots import OneRobot, RobotParams
 from service.schemas.tasks import TaskIn
+from service.schemas.uncertainty import RobustnessOut, UncertaintyIn
 
 if TYPE_CHECKING:
     PathTypeName = str
@@ -73,6 +74,11 @@ class PlanRequest(OneRobot):
         "compiled DOP853) and report the gaps",
     )
     secondary: SecondaryIn | None = Field(default=None, description="a null-space objective for a redundant arm")
+    uncertainty: UncertaintyIn | None = Field(
+        default=None,
+        description="plan it also on robots sampled within these bounds of the mass properties and the start, open and "
+        "closed loop (`robustness` in the answer); null: the nominal robot only",
+    )
 
     def options(self) -> PlanOptions:
         """The engine's plan options of this request (feedback gain, objective, secondary objective)."""
@@ -97,10 +103,12 @@ if TYPE_CHECKING:
     TaskPatch = Input
     MethodPatch = Input
     SecondaryPatch = Input
+    UncertaintyPatch = Input
 else:
     TaskPatch = _patch_of(TaskIn, "TaskPatch")
     MethodPatch = _patch_of(MethodIn, "MethodPatch")
     SecondaryPatch = _patch_of(SecondaryIn, "SecondaryPatch")
+    UncertaintyPatch = _patch_of(UncertaintyIn, "UncertaintyPatch")
 
 
 class PlanRerun(Input):
@@ -136,6 +144,7 @@ class PlanRerun(Input):
     attitude_term: str | None = Field(default=None, description="replaces the stored value (null: the default)")
     replay: bool | None = Field(default=None, description="replaces the stored value (null: the default)")
     secondary: SecondaryPatch | None = Field(default=None, description="merged into the stored one (null: none)")
+    uncertainty: UncertaintyPatch | None = Field(default=None, description="merged into the stored one (null: none)")
 
     def patch(self) -> dict[str, Any]:
         """The merge patch: the fields this body gives (nulls included), but ``from_plan_id``."""
@@ -413,6 +422,9 @@ class PlanSummary(Output):
     success: bool = Field(description="the plan is finite, within the joint speed limit, on the path and at the target")
     message: str = Field(description="the verdict, for a person (where and why a plan failed)")
     metrics: PlanMetrics = Field(description="what the plan achieved")
+    robustness: RobustnessOut | None = Field(
+        default=None, description="the plan on the sampled robots of the request's `uncertainty`; null without one"
+    )
     elapsed_s: float = Field(description="time spent planning (and replaying), s")
     created_at: datetime = Field(description="when it was stored (UTC)")
 

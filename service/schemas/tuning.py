@@ -45,6 +45,9 @@ from service.schemas.methods import MethodBounds, MethodParams, TunableMethodNam
 from service.schemas.plans import PlanMetrics, metrics_out
 from service.schemas.robots import OneRobot
 from service.schemas.tasks import TaskIn
+from service.schemas.uncertainty import UncertaintyIn
+
+RobustStatistic = TypeAliasType("RobustStatistic", Literal["mean", "p95", "max"])
 
 # --- tuning jobs --------------------------------------------------------------------------
 
@@ -135,16 +138,33 @@ class TuningJobRequest(OneRobot):
         description="also tune the `bounded` inverse (DLS held within the joint speed and position limits by an exact "
         "QP) with the same GA settings: the comparison's third row (ignored when `method` is `bounded`)",
     )
+    refine: bool = Field(
+        default=True,
+        description="after the GA, refine its best by Nelder-Mead (records with `stage` `refine` in the history); "
+        "false: the paper's GA alone",
+    )
+    uncertainty: UncertaintyIn | None = Field(
+        default=None,
+        description="robust tuning: B is `robust_statistic` of B over robots sampled within these bounds, each planned "
+        "in closed loop with the nominal model in the controller (infinite if any sample breaks a limit); the job also "
+        "tunes the method on the nominal robot alone, to report what robust tuning gains on the same samples",
+    )
+    robust_statistic: RobustStatistic = Field(
+        default="mean", description="what robust tuning minimises over the samples' B: `mean`, `p95` or `max`"
+    )
 
     def phases(self) -> list[tuple[str, str, dict[str, list[float]] | None]]:
         """The GA runs of the job: ``(method, role, bounds)``, the tuned method then (with
         ``compare_with_dls``) the DLS baseline and (with ``compare_with_bounded``) the bounded
         inverse, each with its default bounds."""
-        phases = [(self.method, "tuned", self.bounds.given() if self.bounds else None)]
+        bounds = self.bounds.given() if self.bounds else None
+        phases = [(self.method, "tuned", bounds)]
         if self.compare_with_dls:
             phases.append(("dls", "dls_baseline", None))
         if self.compare_with_bounded and self.method != "bounded":
             phases.append(("bounded", "bounded_baseline", None))
+        if self.uncertainty is not None:
+            phases.append((self.method, "nominal_tuned", bounds))
         return phases
 
     def problems(self, model: RobotModel) -> list[TuningProblem]:
@@ -155,13 +175,27 @@ class TuningJobRequest(OneRobot):
             with located(task, "body", "tasks", i):
                 tasks.append(task.to_engine(model))
         options = PlanOptions(feedback_gain=self.feedback_gain, objective=self.objective.to_engine())
+        uncertainty = None
+        if self.uncertainty is not None:
+            with located(self.uncertainty, "body", "uncertainty"):
+                uncertainty = self.uncertainty.to_engine()
         with located(self, "body"):
             return [
                 TuningProblem.build(
-                    model, tasks, method, bounds=bounds, options=options, task_aggregation=self.objective.task_aggregation
+                    model,
+                    tasks,
+                    method,
+                    bounds=bounds,
+                    options=options,
+                    task_aggregation=self.objective.task_aggregation,
+                    uncertainty=None if role == "nominal_tuned" else uncertainty,
+                    robust_statistic=self.robust_statistic,
                 )
-                for method, _, bounds in self.phases()
+                for method, role, bounds in self.phases()
             ]
+
+
+Stage = TypeAliasType("Stage", Literal["ga", "refine"])
 
 
 class HistoryRecord(Output):
@@ -169,19 +203,26 @@ class HistoryRecord(Output):
     best: float | None = Field(description="best objective B so far (null while nothing is feasible)")
     mean: float | None = Field(description="mean B of this generation's feasible individuals (null if none)")
     feasible: int = Field(description="feasible individuals in this generation (within the joint speed limit)")
+    stage: Stage = Field(
+        default="ga",
+        description="`ga`: a generation of the GA; `refine`: a record of the Nelder-Mead refinement after it (its plans "
+        "since the previous record; `generation` continues the GA's numbering)",
+    )
 
 
 def history_record(record: GenerationRecord) -> dict[str, Any]:
-    """A generation of the engine's GA as the API's history record (JSON-ready)."""
+    """A generation of the engine's GA (or a record of its refinement) as the API's history
+    record (JSON-ready)."""
     return {
         "generation": record.generation,
         "best": record.best if math.isfinite(record.best) else None,
         "mean": record.mean if math.isfinite(record.mean) else None,
         "feasible": record.feasible,
+        "stage": record.phase,
     }
 
 
-PhaseRole = TypeAliasType("PhaseRole", Literal["tuned", "dls_baseline", "bounded_baseline"])
+PhaseRole = TypeAliasType("PhaseRole", Literal["tuned", "dls_baseline", "bounded_baseline", "nominal_tuned"])
 if TYPE_CHECKING:
     PhaseName = str
 else:
@@ -193,7 +234,10 @@ class JobPhase(Output):
     (with ``compare_with_bounded``) the bounded inverse."""
 
     name: TunableMethodName = Field(description="the method this GA tunes")
-    role: PhaseRole = Field(description="`tuned` (the job's method), `dls_baseline` or `bounded_baseline`")
+    role: PhaseRole = Field(
+        description="`tuned` (the job's method), `dls_baseline`, `bounded_baseline`, or `nominal_tuned` (a robust job's "
+        "method tuned on the nominal robot alone)"
+    )
     generations: int = Field(description="generations of this GA (after the initial population)")
     completed: int = Field(description="generations of this GA finished so far (0 to `generations`)")
     history: list[HistoryRecord] = Field(description="one record per finished generation, from the initial population (0)")
@@ -267,6 +311,33 @@ class BoundedBaseline(Output):
     model_config = ConfigDict(populate_by_name=True)
 
 
+class RobustPair(Output):
+    objective_b: float | None = Field(description="B over the samples (the job's `robust_statistic`); null if infeasible")
+    nominal_objective_b: float | None = Field(description="B of the same parameters on the nominal robot")
+
+
+class NominalTuning(Output):
+    best_params: MethodParams = Field(description="the method tuned on the nominal robot alone (same GA settings)")
+    objective_b: float | None = Field(description="their B over the samples (as the robust tuning measures it)")
+    nominal_objective_b: float | None = Field(description="their B on the nominal robot")
+
+
+class RobustTuningOut(Output):
+    """What robust tuning found, against tuning on the nominal robot, on the same samples."""
+
+    samples: int = Field(description="sampled robots")
+    statistic: RobustStatistic = Field(description="what was minimised over the samples' B")
+    tuned: RobustPair = Field(description="the robust-tuned parameters (`best_params`)")
+    dls_baseline: RobustPair | None = Field(description="the robust-tuned DLS; null without `compare_with_dls`")
+    nominal_tuning: NominalTuning | None = Field(
+        description="the method tuned on the nominal robot; null if it found nothing feasible"
+    )
+    improvement_over_nominal_tuning_percent: float | None = Field(
+        description="how much lower the robust-tuned B over the samples is than the nominal-tuned parameters' B over the "
+        "same samples, percent; null if either is infeasible"
+    )
+
+
 ResultStatus = TypeAliasType("ResultStatus", Literal["succeeded", "cancelled"])
 
 
@@ -302,6 +373,12 @@ class TuningJobResult(Output):
         default_factory=list,
         description="e.g. a tuned parameter on a search bound, where the optimum may lie beyond it: widen that bound",
     )
+    ga_objective_b: float | None = Field(
+        default=None, description="the GA's own best B, before the refinement (equal to `best_objective_b` without it)"
+    )
+    robust: RobustTuningOut | None = Field(
+        default=None, description="robust tuning's figures (a job with `uncertainty`); null otherwise"
+    )
 
     @classmethod
     def from_engine(
@@ -313,6 +390,8 @@ class TuningJobResult(Output):
         status: Literal["succeeded", "cancelled"] = "succeeded",
         message: str = "every generation ran",
         bounded: TuneResult | None = None,
+        robust: tuple[TuneResult, float] | None = None,
+        body: TuningJobRequest | None = None,
     ) -> TuningJobResult:
         """The result of a job's GA runs (the tuned method, and the DLS baseline and the bounded
         inverse if any), complete or (``status`` cancelled) as far as they got."""
@@ -320,6 +399,35 @@ class TuningJobResult(Output):
         def number(value: float) -> float | None:
             return value if math.isfinite(value) else None
 
+        robust_out = None
+        if body is not None and body.uncertainty is not None:
+            nominal, nominal_robust_b = robust if robust is not None else (None, math.inf)
+
+            def pair(result: TuneResult) -> dict[str, float | None]:
+                return {"objective_b": number(result.best_objective_b), "nominal_objective_b": number(result.nominal_objective_b)}
+
+            robust_out = {
+                "samples": body.uncertainty.samples,
+                "statistic": body.robust_statistic,
+                "tuned": {
+                    "objective_b": number(tuned.best_objective_b),
+                    "nominal_objective_b": number(tuned.nominal_objective_b),
+                },
+                "dls_baseline": None
+                if baseline is None
+                else {
+                    "objective_b": number(baseline.best_objective_b),
+                    "nominal_objective_b": number(baseline.nominal_objective_b),
+                },
+                "nominal_tuning": None
+                if nominal is None
+                else {
+                    "best_params": params_out(nominal.best_params),
+                    "objective_b": number(nominal_robust_b),
+                    "nominal_objective_b": number(nominal.best_objective_b),
+                },
+                "improvement_over_nominal_tuning_percent": number(improvement_percent(nominal_robust_b, tuned.best_objective_b)),
+            }
         return cls.model_validate(
             {
                 "status": status,
@@ -351,5 +459,7 @@ class TuningJobResult(Output):
                 if baseline is None or bounded is None
                 else number(improvement_percent(baseline.best_objective_b, bounded.best_objective_b)),
                 "warnings": tuned.warnings,
+                "ga_objective_b": number(tuned.ga_objective_b),
+                "robust": robust_out,
             }
         )

@@ -23,8 +23,11 @@ from sqlalchemy import ColumnElement, func, or_, select
 from sqlalchemy.orm import Session
 
 from engine import DurationSearch, Inverse, PlanResult, PlanSetup, RobotModel, replay, run_plan, shortest_duration
+from engine.errors import ParameterError
 from engine.executed import replay_executed
+from engine.robustness import Robustness, robustness
 from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
+from engine.uncertainty import Uncertainty
 from service.errors import ApiValidationError, NotFoundError, body_invalid
 from service.infra import jsonio
 from service.infra.db import Database
@@ -47,10 +50,21 @@ from service.schemas.plans import (
     Trajectory,
     metrics_out,
 )
+from service.schemas.uncertainty import RobustnessOut
 from service.usecases import meshes, robots, rows
 
 #: A plan whose joints turn more than this in all is not replayed (not physically meaningful).
 REPLAY_MAX_TRAVEL_RAD = 200.0
+#: Joint-steps a plan's robustness may take (two loops x samples x plan-steps x joints): about
+#: ten seconds of one core, so that a synchronous request stays a request.
+MAX_ROBUSTNESS_JOINT_STEPS = 5_000_000
+#: The stored record's robustness bands (``(N+1, 3)``: smallest, median, largest over the samples).
+ROBUSTNESS_BANDS = (
+    "robust_open_position_band",
+    "robust_open_attitude_band",
+    "robust_closed_position_band",
+    "robust_closed_attitude_band",
+)
 
 
 def _quaternions(R: np.ndarray) -> np.ndarray:
@@ -172,6 +186,20 @@ class Prepared:
     model: RobotModel
     setup: PlanSetup
     inverse: Inverse
+    uncertainty: Uncertainty | None = None
+
+
+def check_uncertainty(setup: PlanSetup, uncertainty: Uncertainty) -> None:
+    """Refuse a robustness that would cost more than :data:`MAX_ROBUSTNESS_JOINT_STEPS`
+    (``ParameterError`` naming ``samples``)."""
+    per_sample = 2 * (setup.task.n_steps + 1) * setup.model.n_joints
+    if uncertainty.samples * per_sample > MAX_ROBUSTNESS_JOINT_STEPS:
+        raise ParameterError(
+            "samples",
+            f"{uncertainty.samples} samples x 2 loops x {setup.task.n_steps + 1} plan-steps x {setup.model.n_joints} joints "
+            f"= {uncertainty.samples * per_sample:.3g} joint-steps, at most {MAX_ROBUSTNESS_JOINT_STEPS:.3g} per plan: "
+            f"at most {max(1, MAX_ROBUSTNESS_JOINT_STEPS // per_sample)} samples for this task",
+        )
 
 
 def prepare(db: Database | None, body: PlanRequest) -> Prepared:
@@ -190,7 +218,12 @@ def prepare(db: Database | None, body: PlanRequest) -> Prepared:
         inverse = body.method.to_engine()
     with located(body, "body"):
         setup = PlanSetup(model, task, body.options())
-    return Prepared(robot_id, model, setup, inverse)
+    uncertainty = None
+    if body.uncertainty is not None:
+        with located(body.uncertainty, "body", "uncertainty"):
+            uncertainty = body.uncertainty.to_engine()
+            check_uncertainty(setup, uncertainty)
+    return Prepared(robot_id, model, setup, inverse, uncertainty)
 
 
 def finish(
@@ -204,6 +237,14 @@ def finish(
     elif body.replay:
         replayed = ReplayOut.from_engine(replay(prepared.model, result), replay_executed(prepared.model, result))
     record = record_of(result, prepared.model)
+    robust: Robustness | None = None
+    if prepared.uncertainty is not None:
+        robust = robustness(prepared.setup, prepared.inverse, result, prepared.uncertainty)
+        bands = (robust.open_loop, robust.closed_loop)
+        for name, array in zip(
+            ROBUSTNESS_BANDS, [a for loop in bands for a in (loop.position_error_band, loop.attitude_error_band)], strict=True
+        ):
+            record[name] = array
     row = Plan(
         robot_id=prepared.robot_id,
         request=request,
@@ -213,6 +254,7 @@ def finish(
         metrics=metrics_out(result.metrics),
         trajectory_data=pack_trajectory(record),
         replay=replayed.model_dump(mode="json") if replayed is not None else None,
+        robustness=jsonio.clean(RobustnessOut.from_engine(robust).model_dump(mode="json")) if robust is not None else None,
         elapsed_s=time.perf_counter() - started,
     )
     return Planned(row, record, prepared.model.joint_names)
@@ -266,6 +308,7 @@ SUMMARY_COLUMNS = (
     Plan.success,
     Plan.message,
     Plan.metrics,
+    Plan.robustness,
     Plan.elapsed_s,
     Plan.created_at,
 )
@@ -290,6 +333,7 @@ def summary(row: Plan | Any) -> PlanSummary:
             "success": row.success,
             "message": row.message,
             "metrics": row.metrics,
+            "robustness": row.robustness,
             "elapsed_s": row.elapsed_s,
             "created_at": row.created_at,
         },

@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session
 
 from engine import RobotModel
 from engine.tuning import TuningProblem
+from engine.tuning.refine import max_evaluations
 from service import queue
 from service.errors import ApiValidationError, ConflictError, TooManyRequestsError
 from service.infra import jsonio
@@ -28,6 +29,7 @@ from service.schemas.tuning import (
     JobPhase,
     JobProgress,
     PhaseRole,
+    Stage,
     TuningJobList,
     TuningJobOut,
     TuningJobRequest,
@@ -47,32 +49,47 @@ def planned_evaluations(body: TuningJobRequest) -> int:
     return body.ga.population * (body.ga.generations + 1) * len(body.tasks) * len(body.phases())
 
 
+def samples_of(body: TuningJobRequest) -> int:
+    """Robots each parameter set is planned on: the uncertainty's samples, or 1."""
+    return body.uncertainty.samples if body.uncertainty is not None else 1
+
+
 def planned_joint_steps(body: TuningJobRequest, problems: Sequence[TuningProblem], model: RobotModel) -> int:
-    """The work a job may need in joint-steps: population x (generations + 1) x the plan-steps of
-    its tasks x joints, for each phase."""
-    return sum(body.ga.population * (body.ga.generations + 1) * p.plan_steps() * model.n_joints for p in problems)
+    """The work a job may need in joint-steps: (population x (generations + 1), plus the
+    refinement's most plans) x the plan-steps of its tasks (on each sampled robot) x joints, for
+    each phase."""
+    return sum(
+        (body.ga.population * (body.ga.generations + 1) + (max_evaluations(len(p.bounds)) if body.refine else 0))
+        * p.plan_steps()
+        * model.n_joints
+        for p in problems
+    )
 
 
 def check(model: RobotModel, body: TuningJobRequest) -> list[TuningProblem]:
     """Everything the GA would refuse, checked up front so that a bad job is a 422, not a
     failure; the job's engine problems (one per phase)."""
     count = len(body.phases())
-    twice = f" * {count} (phases: compare_with_dls, compare_with_bounded)" if count > 1 else ""
+    twice = f" * {count} (phases: compare_with_dls, compare_with_bounded, uncertainty)" if count > 1 else ""
+    samples = samples_of(body)
+    sampled = f" * {samples} (uncertainty.samples)" if samples > 1 else ""
+    # a robust job's excess is its samples' fault: the error names them
+    where = ["body", "uncertainty", "samples"] if samples > 1 else ["body", "ga"]
     evaluations = planned_evaluations(body)
     if evaluations > MAX_PLAN_EVALUATIONS:
         msg = f"population * (generations + 1) * tasks{twice} = {evaluations} plan evaluations, at most {MAX_PLAN_EVALUATIONS}"
         raise ApiValidationError(f"ga: {msg}", [{"loc": ["body", "ga"], "msg": msg}])
     problems = body.problems(model)
-    work = planned_joint_steps(body, problems, model)
+    work = planned_joint_steps(body, problems, model)  # plan_steps() counts the samples
     if work > MAX_JOB_JOINT_STEPS:
         steps = problems[0].plan_steps()
         msg = (
-            f"population * (generations + 1){twice} * plan-steps of the tasks ({steps}) * joints ({model.n_joints}) "
+            f"population * (generations + 1){twice} * plan-steps of the tasks{sampled} ({steps}) * joints ({model.n_joints}) "
             f"= {work:.3g} joint-steps, at most {MAX_JOB_JOINT_STEPS:.3g} per job (about a microsecond each: "
             f"{work * 1e-6 / 3600:.1g} h of one core): use fewer generations, a smaller population, fewer or "
             "shorter tasks, or a coarser dt_s"
         )
-        raise ApiValidationError(f"ga: {msg}", [{"loc": ["body", "ga"], "msg": msg}])
+        raise ApiValidationError(f"{where[-1]}: {msg}", [{"loc": where, "msg": msg}])
     return problems
 
 
@@ -104,16 +121,19 @@ def phases(request: dict[str, Any], rows: Sequence[JobGeneration]) -> list[JobPh
         roles.append(("dls", "dls_baseline"))
     if request.get("compare_with_bounded", False) and method != "bounded":
         roles.append(("bounded", "bounded_baseline"))
+    if request.get("uncertainty") is not None:
+        roles.append((method, "nominal_tuned"))
     by_role: dict[str, list[HistoryRecord]] = {}
     for row in rows:
-        record = HistoryRecord(generation=row.generation, best=row.best, mean=row.mean, feasible=row.feasible)
+        stage: Stage = "refine" if row.stage == "refine" else "ga"
+        record = HistoryRecord(generation=row.generation, best=row.best, mean=row.mean, feasible=row.feasible, stage=stage)
         by_role.setdefault(row.role, []).append(record)
     return [
         JobPhase(
             name=name,
             role=role,
             generations=generations,
-            completed=max((r.generation for r in by_role.get(role, [])), default=0),
+            completed=max((r.generation for r in by_role.get(role, []) if r.stage == "ga"), default=0),
             history=by_role.get(role, []),
         )
         for name, role in roles

@@ -158,7 +158,7 @@ class _Job:
                 done.feasible,
             )
             progress = {
-                "generation": index * generations + done.generation,
+                "generation": index * generations + min(done.generation, generations),
                 "generations": total,
                 "evaluations": evaluations + done.evaluations,
                 "best_objective_b": done.best_objective_b,
@@ -171,6 +171,7 @@ class _Job:
                 "seq": self.records,
                 "phase": method,
                 "role": role,
+                "stage": done.phase,
                 "generation": done.generation,
                 "best": done.best_objective_b,
                 "mean": done.mean_objective_b,
@@ -179,7 +180,9 @@ class _Job:
             self.write(jsonio.clean(progress), jsonio.clean(row))
 
         ga = BinaryGA(problem.bounds, body.ga.to_engine(), body.ga.seed)
-        return run(problem, ga, self.termination, callback=written, map_fn=map_fn, chunks=chunks, seed=body.ga.seed)
+        return run(
+            problem, ga, self.termination, callback=written, map_fn=map_fn, chunks=chunks, seed=body.ga.seed, refine=body.refine
+        )
 
 
 def cancelled_result(body: TuningJobRequest, results: list[TuneResult], evaluations: int) -> dict[str, Any] | None:
@@ -276,12 +279,19 @@ def run_job(
     if not tuned.success:
         return job.fail(tuned.message)
     by_role = {role: result for result, (_, role, _) in zip(results, body.phases(), strict=True)}
+    nominal = by_role.get("nominal_tuned")
+    robust = None
+    if nominal is not None and nominal.success:
+        # the nominal tuning's parameters on the robust job's samples: what robust tuning gains
+        robust = (nominal, problems[0].objective_b(nominal.best_params))
     outcome = TuningJobResult.from_engine(
         tuned,
         by_role.get("dls_baseline"),
         evaluations,
         sum(r.elapsed_s for r in results),
         bounded=by_role.get("bounded_baseline"),
+        robust=robust,
+        body=body,
     )
     final = jsonio.clean(
         {
