@@ -179,4 +179,5 @@ def job_body(population: int = 4, generations: int = 2, compare: bool = True, **
         "ga": {"population": population, "generations": generations, "seed": 1},
         "objective": {"weights": [0.5, 0.5], "aggregation": "max"},
         "compare_with_dls": compare,
+        "refine": False,  # the paper's GA alone: the job tests count its generations and plans
     }
