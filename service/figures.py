@@ -648,7 +648,7 @@ def draw_robustness(data: PlanData, axes: Sequence[Axes]) -> None:
             ax.fill_between(data.t, band[:, 0], band[:, 2], color=color, alpha=0.25, linewidth=0, label=f"{loop} loop: samples")
             _line(ax, data.t, band[:, 1], color=color, linestyle="--", label=f"{loop} loop: median")
         _line(ax, data.t, nominal * scale, color="C0", label="nominal plan")
-    _legend(position)
+        _legend(ax)
 
 
 SCENE_INSTANTS = 5

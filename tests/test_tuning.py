@@ -25,7 +25,7 @@ def bowl(monkeypatch):
 
 
 def test_ga_finds_the_minimum_of_a_known_function(robot, task, bowl):
-    result = tune(robot, task, "adaptive", population=40, generations=40, seed=3, mutation_probability=0.03)
+    result = tune(robot, task, "adaptive", population=40, generations=40, seed=3, mutation_probability=0.03, refine=False)
     assert result.success
     assert abs(result.best_params["lambda_max"] - 0.03) < 0.01
     assert abs(result.best_params["epsilon"] - 0.2) < 0.015
@@ -79,8 +79,8 @@ def test_pluggable_map_and_chunks_give_the_same_result(robot, task, bowl):
         calls.append(len(items))
         return map(fn, items)
 
-    a = tune(robot, task, "adaptive", population=10, generations=3, seed=5)
-    b = tune(robot, task, "adaptive", population=10, generations=3, seed=5, map_fn=counting_map, chunks=3)
+    a = tune(robot, task, "adaptive", population=10, generations=3, seed=5, refine=False)
+    b = tune(robot, task, "adaptive", population=10, generations=3, seed=5, map_fn=counting_map, chunks=3, refine=False)
     assert a.best_params == b.best_params
     assert calls and all(c == 3 for c in calls)
 
@@ -147,7 +147,7 @@ def test_tune_validation(robot, task, kwargs, field):
 def test_paper_task_adaptive_beats_tuned_dls(robot, task):
     """Small GA on the real planner: the tuned adaptive damping respects 6 deg/s and beats
     the best constant damping found with the same budget."""
-    result: Comparison = compare(robot, task, population=16, generations=8, seed=11)
+    result: Comparison = compare(robot, task, population=16, generations=8, seed=11, refine=False)
     adaptive, dls = result.adaptive, result.dls
     assert adaptive.success and dls.success
     for metrics in adaptive.best_metrics + dls.best_metrics:
@@ -196,7 +196,7 @@ def test_process_pool_and_dask_give_the_same_result(robot, task):
 def test_paper_numbers_with_eq18_as_printed(robot, task):
     """With eq. 18 read literally (products of position and attitude error components) the
     tuned objectives land at the paper's values (DLS 0.0030, adaptive 0.0022, -26.7%)."""
-    result = compare(robot, task, population=16, generations=8, seed=11, attitude_term="eq18", with_bounded=False)
+    result = compare(robot, task, population=16, generations=8, seed=11, attitude_term="eq18", with_bounded=False, refine=False)
     assert 0.0020 < result.dls.best_objective_b < 0.0035
     assert 0.0015 < result.adaptive.best_objective_b < 0.0025
     assert 20.0 < result.improvement_percent < 40.0

@@ -169,3 +169,44 @@ def test_the_tuner_finds_the_grid_optimum() -> None:
     alone = tune(MODEL, TASK, "adaptive", seed=1, refine=False)
     assert alone.best_objective_b == tuned.ga_objective_b > grid.best_objective_b * 1.005
     assert all(r.phase == "ga" for r in alone.history) and len(alone.history) == 51
+
+
+def test_the_refinements_nelder_mead_is_scipys() -> None:
+    """Point by point the same search as ``scipy.optimize.minimize(method="Nelder-Mead")`` with
+    bounds: on a bent valley and on the paper task's B (with its infeasible region)."""
+    from scipy.optimize import minimize
+
+    from engine.tuning.refine import nelder_mead
+
+    problem = TuningProblem.build(MODEL, TASK, "adaptive")
+    lo, hi = np.array([1e-4, 1e-4]), np.array([0.2, 1.0])
+
+    def paper_b(u: np.ndarray) -> float:
+        x = lo + np.clip(u, 0.0, 1.0) * (hi - lo)
+        return problem.objective_b({"lambda_max": float(x[0]), "epsilon": float(x[1])})
+
+    def valley(u: np.ndarray) -> float:
+        return float((u[0] - 0.3) ** 2 + 10.0 * (u[1] - u[0] ** 2) ** 2)
+
+    for f, start in ((valley, [0.9, 0.1]), (paper_b, [0.188, 0.558])):
+        simplex = np.array([start, [start[0] + 0.05, start[1]], [start[0], start[1] + 0.05]])
+        ours_calls: list[tuple[float, ...]] = []
+        theirs_calls: list[tuple[float, ...]] = []
+
+        def counted(calls: list[tuple[float, ...]], f=f):  # type: ignore[no-untyped-def]
+            def g(u: np.ndarray) -> float:
+                calls.append(tuple(u))
+                return float(f(u))
+
+            return g
+
+        ours_f, theirs_f = counted(ours_calls), counted(theirs_calls)
+        x, fx = nelder_mead(ours_f, simplex, xatol=1e-7, fatol=1e-12, maxfev=300)
+        found = minimize(
+            theirs_f,
+            simplex[0],
+            method="Nelder-Mead",
+            bounds=[(0.0, 1.0)] * 2,
+            options={"initial_simplex": simplex, "xatol": 1e-7, "fatol": 1e-12, "maxfev": 300},
+        )
+        assert ours_calls == theirs_calls and fx == found.fun and np.array_equal(x, found.x)

@@ -1,4 +1,4 @@
-"""The refinement after the GA: scipy's bounded Nelder-Mead from the GA's best individual.
+"""The refinement after the GA: bounded Nelder-Mead from the GA's best individuals.
 
 The binary GA finds the basin of ``B`` but not its bottom: the paper task's feasible optimum
 lies in a narrow valley along the joint speed limit, where ``B`` jumps to infinity, and a
@@ -18,8 +18,15 @@ at least :data:`START_SEPARATION` (scaled) from the points already chosen.
 The search works in coordinates scaled to the bounds (``[0, 1]`` per parameter), starts from a
 simplex of :data:`FIRST_STEP` of each range about a start, and restarts from its result
 (a collapsed simplex can stop short on the limit's edge) until a restart gains nothing, at
-most :data:`RESTARTS` times. Every :data:`RECORD_EVERY` plans make one history record
-(``phase`` ``refine``), continuing the GA's numbering.
+most :data:`RESTARTS` times.
+
+:func:`nelder_mead` is scipy's bounded Nelder-Mead (``scipy.optimize.minimize``,
+``method="Nelder-Mead"``: the same coefficients, order of operations, clipping to the bounds and
+stopping rules; the tests compare the two point by point). It is written out here because
+importing ``scipy.optimize`` costs every worker process about 37 MiB of memory.
+
+Every :data:`RECORD_EVERY` plans make one history record (``phase`` ``refine``), continuing the
+GA's numbering.
 """
 
 from __future__ import annotations
@@ -27,7 +34,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -100,8 +106,6 @@ def refine(
     """Refine from each of ``starts`` (``(params, B)``, the best first) within ``bounds`` by Nelder-Mead, evaluating
     ``B`` of parameter sets with ``evaluate`` (``{name: (1,)}`` -> ``(1,)``). ``on_record(record,
     planned)`` after each record; ``stop`` ends the search early (the best so far is kept)."""
-    from scipy.optimize import minimize
-
     names = list(bounds)
     lo = np.array([bounds[n][0] for n in names])
     span = np.array([bounds[n][1] - bounds[n][0] for n in names])
@@ -153,7 +157,7 @@ def refine(
         known[tuple(scaled(params).tolist())] = float(b)
     try:
         for params, b in starts:
-            search_from(scaled(params), float(b), objective, minimize, len(names))
+            search_from(scaled(params), float(b), objective, len(names))
     except EvaluationStoppedError:
         out.stopped = True
     if pending or not out.history:
@@ -161,7 +165,78 @@ def refine(
     return out
 
 
-def search_from(start: FloatArray, start_b: float, objective: Callable[[FloatArray], float], minimize: Any, d: int) -> None:
+def nelder_mead(
+    f: Callable[[FloatArray], float], simplex: FloatArray, *, xatol: float, fatol: float, maxfev: int
+) -> tuple[FloatArray, float]:
+    """Minimise ``f`` over the unit box from ``simplex (d+1, d)``: scipy's bounded Nelder-Mead
+    (reflection 1, expansion 2, contraction 1/2, shrink 1/2; every new point clipped to the box;
+    done when the simplex is within ``xatol`` and its values within ``fatol`` of its best, or after
+    ``maxfev`` calls of ``f``). Returns the best point and its value."""
+    rho, chi, psi, sigma = 1.0, 2.0, 0.5, 0.5
+    sim = np.clip(np.array(simplex, dtype=float), 0.0, 1.0)
+    d = sim.shape[1]
+    calls = 0
+
+    def call(x: FloatArray) -> float:
+        nonlocal calls
+        if calls >= maxfev:
+            raise _ExhaustedError
+        calls += 1
+        return f(x)
+
+    fsim = np.full(d + 1, np.inf)
+    try:
+        for k in range(d + 1):
+            fsim[k] = call(sim[k])
+    except _ExhaustedError:
+        pass
+    order = np.argsort(fsim)
+    sim, fsim = sim[order], fsim[order]
+    while calls < maxfev:
+        try:
+            if np.max(np.abs(sim[1:] - sim[0])) <= xatol and np.max(np.abs(fsim[0] - fsim[1:])) <= fatol:
+                break
+            xbar = np.add.reduce(sim[:-1], 0) / d
+            xr = np.clip((1 + rho) * xbar - rho * sim[-1], 0.0, 1.0)
+            fxr = call(xr)
+            if fxr < fsim[0]:
+                xe = np.clip((1 + rho * chi) * xbar - rho * chi * sim[-1], 0.0, 1.0)
+                fxe = call(xe)
+                sim[-1], fsim[-1] = (xe, fxe) if fxe < fxr else (xr, fxr)
+            elif fxr < fsim[-2]:
+                sim[-1], fsim[-1] = xr, fxr
+            else:
+                shrink = False
+                if fxr < fsim[-1]:  # outside contraction
+                    xc = np.clip((1 + psi * rho) * xbar - psi * rho * sim[-1], 0.0, 1.0)
+                    fxc = call(xc)
+                    if fxc <= fxr:
+                        sim[-1], fsim[-1] = xc, fxc
+                    else:
+                        shrink = True
+                else:  # inside contraction
+                    xcc = np.clip((1 - psi) * xbar + psi * sim[-1], 0.0, 1.0)
+                    fxcc = call(xcc)
+                    if fxcc < fsim[-1]:
+                        sim[-1], fsim[-1] = xcc, fxcc
+                    else:
+                        shrink = True
+                if shrink:
+                    for j in range(1, d + 1):
+                        sim[j] = np.clip(sim[0] + sigma * (sim[j] - sim[0]), 0.0, 1.0)
+                        fsim[j] = call(sim[j])
+        except _ExhaustedError:
+            pass
+        order = np.argsort(fsim)
+        sim, fsim = sim[order], fsim[order]
+    return sim[0], float(fsim[0])
+
+
+class _ExhaustedError(Exception):
+    """:func:`nelder_mead` ran out of calls."""
+
+
+def search_from(start: FloatArray, start_b: float, objective: Callable[[FloatArray], float], d: int) -> None:
     """Nelder-Mead from ``start`` (scaled), restarted from its best until a restart gains nothing."""
     best, best_b = start, start_b
     for _ in range(1 + RESTARTS):
@@ -171,18 +246,9 @@ def search_from(start: FloatArray, start_b: float, objective: Callable[[FloatArr
             vertex = centre.copy()
             vertex[i] += FIRST_STEP if centre[i] + FIRST_STEP <= 1.0 else -FIRST_STEP
             simplex.append(vertex)
-        found = minimize(
-            objective,
-            centre,
-            method="Nelder-Mead",
-            bounds=[(0.0, 1.0)] * d,
-            options={
-                "initial_simplex": np.array(simplex),
-                "xatol": X_TOLERANCE,
-                "fatol": B_TOLERANCE,
-                "maxfev": EVALUATIONS_PER_PARAMETER * d,
-            },
+        x, fx = nelder_mead(
+            objective, np.array(simplex), xatol=X_TOLERANCE, fatol=B_TOLERANCE, maxfev=EVALUATIONS_PER_PARAMETER * d
         )
-        if not float(found.fun) < best_b:
+        if not fx < best_b:
             break
-        best, best_b = np.clip(found.x, 0.0, 1.0), float(found.fun)
+        best, best_b = x, fx

@@ -70,12 +70,12 @@ class SampleOut(Output):
     frame) and each joint's start error."""
 
     index: int = Field(description="the sample's index (0-based)")
-    carrier_mass_factor: float
-    carrier_inertia_factor: float
-    link_mass_factors: list[float]
-    link_inertia_factors: list[float]
-    link_com_offsets_m: list[list[float]]
-    q0_offset_deg: list[float]
+    carrier_mass_factor: float = Field(description="the carrier's mass over the nominal one (dimensionless)")
+    carrier_inertia_factor: float = Field(description="the carrier's inertia over the nominal one (dimensionless)")
+    link_mass_factors: list[float] = Field(description="each link's mass over the nominal one (dimensionless)")
+    link_inertia_factors: list[float] = Field(description="each link's inertia over the nominal one (dimensionless)")
+    link_com_offsets_m: list[list[float]] = Field(description="each link's CoM offset [x, y, z] in its link frame, m")
+    q0_offset_deg: list[float] = Field(description="each joint's start error, deg (0 for prismatic joints)")
     position_error_max_m: float | None = Field(description="its largest position error, m (null: diverged)")
     attitude_error_max_deg: float | None = Field(description="its largest attitude error, deg (null: diverged)")
 
@@ -84,7 +84,7 @@ class LoopOut(Output):
     position_error_max_m: SpreadOut = Field(description="each sample's largest end-effector position error, m")
     attitude_error_max_deg: SpreadOut = Field(description="each sample's largest attitude error, deg")
     limit_broken_fraction: float = Field(
-        description="the fraction of samples that break a limit (joint speed, position or torque, clearance) or diverge"
+        description="the fraction of samples (0 to 1) that break a limit (joint speed, position or torque, clearance) or diverge"
     )
     diverged: int = Field(description="samples whose plan diverged")
     worst_sample: SampleOut = Field(description="the sample with the largest position error")
@@ -116,8 +116,8 @@ class RobustnessOut(Output):
     samples: int = Field(description="sampled robots")
     success: bool = Field(description="no sample breaks a limit in closed loop")
     message: str = Field(description="the verdict, for a person")
-    open_loop: LoopOut
-    closed_loop: LoopOut
+    open_loop: LoopOut = Field(description="the plan's joint motion on each sampled robot")
+    closed_loop: LoopOut = Field(description="the planner on each sampled robot, the nominal model in the controller")
 
     @classmethod
     def from_engine(cls, r: Robustness) -> RobustnessOut:

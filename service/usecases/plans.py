@@ -106,6 +106,12 @@ def record_of(result: PlanResult, model: RobotModel) -> dict[str, np.ndarray]:
     }
 
 
+def robustness_record(robust: Robustness) -> dict[str, np.ndarray]:
+    """The stored bands of a plan's robustness (:data:`ROBUSTNESS_BANDS`)."""
+    bands = [a for loop in (robust.open_loop, robust.closed_loop) for a in (loop.position_error_band, loop.attitude_error_band)]
+    return dict(zip(ROBUSTNESS_BANDS, bands, strict=True))
+
+
 def record_from_storage(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """A stored plan's SI record: the record itself, or (plans stored before it existed) the
     API's arrays converted back (degrees to radians; prismatic columns from the ``_m`` arrays)."""
@@ -240,11 +246,7 @@ def finish(
     robust: Robustness | None = None
     if prepared.uncertainty is not None:
         robust = robustness(prepared.setup, prepared.inverse, result, prepared.uncertainty)
-        bands = (robust.open_loop, robust.closed_loop)
-        for name, array in zip(
-            ROBUSTNESS_BANDS, [a for loop in bands for a in (loop.position_error_band, loop.attitude_error_band)], strict=True
-        ):
-            record[name] = array
+        record.update(robustness_record(robust))
     row = Plan(
         robot_id=prepared.robot_id,
         request=request,

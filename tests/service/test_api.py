@@ -33,7 +33,7 @@ def test_health_and_ready(client: httpx.Client) -> None:
     assert client.get("/healthz").json()["status"] == "ok"
     ready = client.get("/readyz")
     assert ready.status_code == 200
-    assert ready.json()["revision"] == ready.json()["head"] == "0006"
+    assert ready.json()["revision"] == ready.json()["head"] == "0007"
     assert ready.json()["kernels"] == "ok"
 
 
@@ -242,7 +242,9 @@ def test_a_20000_step_plan_is_replayed_and_fields_leave_the_trajectory_out(clien
     assert "trajectory" not in plan and plan["replay"]["success"] is True
     assert plan["replay"]["plan_gap_position_max_m"] < 1e-6
     summary = client.get(plan_path(r), params={"fields": ""}).json()
-    assert set(summary) == {"id", "robot_id", "request", "method", "success", "message", "metrics", "elapsed_s", "created_at"}
+    assert set(summary) == {
+        *("id", "robot_id", "request", "method", "success", "message", "metrics", "robustness", "elapsed_s", "created_at")
+    }
     full = client.get(plan_path(r)).json()
     assert len(full["trajectory"]["t_s"]) == 20001 and full["replay"] == plan["replay"]
 

@@ -24,11 +24,12 @@ from matplotlib.transforms import Bbox
 
 from engine import PlanSetup, RobotModel, State, generalized_jacobian, run_plan, table1_robot, urdf_robot
 from engine.model import table1_with_geometry
+from engine.robustness import robustness
 from service import figures
 from service.schemas.methods import MethodOut
 from service.schemas.plans import PlanRequest, metrics_out
 from service.usecases import presets
-from service.usecases.plans import record_of
+from service.usecases.plans import record_of, robustness_record
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -37,9 +38,14 @@ def _plan(body: dict[str, Any], plan_id: str, model: RobotModel | None = None) -
     request = PlanRequest.model_validate({"robot_id": "table1", **body})
     model = model or table1_robot()
     task = request.task.to_engine(model)
-    result = run_plan(PlanSetup(model, task, request.options()), request.method.to_engine())
+    setup = PlanSetup(model, task, request.options())
+    result = run_plan(setup, request.method.to_engine())
+    record = record_of(result, model)
+    if request.uncertainty is not None:  # the robustness figure's bands
+        robust = robustness(setup, request.method.to_engine(), result, request.uncertainty.to_engine())
+        record.update(robustness_record(robust))
     data = figures.PlanData(
-        record_of(result, model),
+        record,
         plan_id=plan_id,
         method=MethodOut.from_engine(result.inverse, result.secondary).model_dump(mode="json"),
         metrics=metrics_out(result.metrics),
@@ -58,7 +64,12 @@ def plans() -> dict[str, figures.PlanData]:
     assert raster.method is not None and target.method is not None
     out = {
         "paper": _plan(
-            {"task": paper, "method": {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}}}, "a" * 32
+            {
+                "task": paper,
+                "method": {"name": "adaptive", "params": {"lambda_max": 0.06, "epsilon": 0.12}},
+                "uncertainty": {"carrier_mass_rel": 0.1, "carrier_inertia_rel": 0.1, "samples": 8},
+            },
+            "a" * 32,
         ),
         "raster": _plan({"task": {**raster.task.model_dump(), "dt_s": 0.5}, "method": raster.method.model_dump()}, "b" * 32),
         "inverse": _plan({"task": paper, "method": {"name": "inverse"}}, "c" * 32),
@@ -68,6 +79,7 @@ def plans() -> dict[str, figures.PlanData]:
                 "robot_id": "table1-geometry",
                 "task": {**target.task.model_dump(), "dt_s": 0.5},
                 "method": target.method.model_dump(),
+                "uncertainty": {"link_mass_rel": 0.1, "link_com_m": 0.01, "q0_deg": 0.2, "samples": 4},
             },
             "d" * 32,
             table1_with_geometry(),
@@ -137,6 +149,9 @@ def test_every_figure_has_units_and_legends_off_the_data(plans: dict[str, figure
     if name == "clearance" and plans[key].clearance is None:  # no geometry: it says so
         (ax,) = time_axes(fig)
         assert "no collision geometry" in " ".join(t.get_text() for t in ax.texts)
+        return
+    if name == "robustness" and not plans[key].robust_bands:  # planned without uncertainty: it says so
+        assert "planned without uncertainty" in " ".join(t.get_text() for ax in time_axes(fig) for t in ax.texts)
         return
     axes = time_axes(fig)
     assert axes[-1].get_xlabel() == "time t [s]"

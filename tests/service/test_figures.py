@@ -26,6 +26,7 @@ TIME_FIGURES = [
     "joint-torques",
     "carrier-wrench",
     "clearance",
+    "robustness",
 ]
 PLAN_NAMES = [*TIME_FIGURES, "scene-3d"]
 

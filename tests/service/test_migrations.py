@@ -39,7 +39,7 @@ def test_upgrade_downgrade_roundtrip(tmp_path: Path) -> None:
     engine = make_engine(url)
     try:
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == head_revision(url) == "0006"
+        assert current_revision(engine) == head_revision(url) == "0007"
         columns = {c["name"] for c in inspect(engine).get_columns("tuning_jobs")}
         assert {"status", "lease_owner", "lease_expires_at", "attempts", "progress", "result", "idempotency_key"} <= columns
         assert "idempotency_fingerprint" in columns
@@ -158,7 +158,7 @@ def test_migrate_killed_at_random_moments_never_leaves_a_broken_database(tmp_pat
         upgrade(url)  # must succeed whatever state the kill left
         assert _schema(path) == expected, f"trial {trial}"
         with sqlite3.connect(path) as con:
-            assert con.execute("SELECT version_num FROM alembic_version").fetchall() == [("0006",)]
+            assert con.execute("SELECT version_num FROM alembic_version").fetchall() == [("0007",)]
     assert outcomes["killed during or after the DDL"] >= 15, outcomes
 
 
@@ -232,4 +232,4 @@ def test_cli_migrate_seeds_preset_and_alembic_ini_works(tmp_path: Path) -> None:
         text=True,
     )
     assert out.returncode == 0, out.stderr
-    assert "0006" in out.stdout
+    assert "0007" in out.stdout

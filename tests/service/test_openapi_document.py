@@ -15,6 +15,8 @@ import pytest
 from engine.inverses import METHODS
 from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS
 from engine.paths import PATH_TYPES, PROFILES
+from engine.tuning import ROBUST_STATISTICS
+from engine.uncertainty import DISTRIBUTIONS
 from service.app import create_app
 from service.infra.settings import Settings
 from service.openapi import reached_schemas, schema_refs
@@ -87,7 +89,9 @@ def test_closed_vocabularies_are_named_enums_matching_the_engine(doc: dict[str, 
     assert set(_enum(doc, "AttitudeTermName")) == set(ATTITUDE_TERMS)
     assert set(_enum(doc, "TimeProfile")) == set(PROFILES)
     assert _enum(doc, "JobStatus") == ["queued", "running", "succeeded", "failed", "cancelled"]
-    assert _enum(doc, "PhaseRole") == ["tuned", "dls_baseline", "bounded_baseline"]
+    assert _enum(doc, "PhaseRole") == ["tuned", "dls_baseline", "bounded_baseline", "nominal_tuned"]
+    assert _enum(doc, "Stage") == ["ga", "refine"] and _enum(doc, "RobustStatistic") == list(ROBUST_STATISTICS)
+    assert _enum(doc, "DistributionName") == list(DISTRIBUTIONS)
     assert set(_enum(doc, "ParamName")) == {p.name for spec in METHODS.values() for p in spec.params}
     schemas = doc["components"]["schemas"]
     assert {schemas[f"{t.capitalize()}PathIn"]["properties"]["type"]["const"] for t in PATH_TYPES} == set(PATH_TYPES)

@@ -28,13 +28,13 @@ def test_pg_upgrade_downgrade_roundtrip(pg_url: str) -> None:  # noqa: F811
     try:
         assert engine.dialect.name == "postgresql"
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == head_revision(pg_url) == "0006"
+        assert current_revision(engine) == head_revision(pg_url) == "0007"
         downgrade(pg_url)
         assert not TABLES & set(inspect(engine).get_table_names())
         assert current_revision(engine) is None
         upgrade(pg_url)
         assert set(inspect(engine).get_table_names()) >= TABLES
-        assert current_revision(engine) == "0006"
+        assert current_revision(engine) == "0007"
     finally:
         engine.dispose()
 
@@ -44,7 +44,7 @@ def test_pg_api_and_two_workers(make_stack: Callable[..., Stack], pg_url: str) -
     stack.start_api()
     with stack.client() as client:
         ready = client.get("/readyz")
-        assert ready.status_code == 200 and ready.json()["revision"] == "0006", ready.text
+        assert ready.status_code == 200 and ready.json()["revision"] == "0007", ready.text
         r = client.post("/v1/plans", json={"robot_id": "table1", "task": PAPER_TASK, "replay": False})
         assert r.status_code == 201, r.text
         plan = r.json()

@@ -129,13 +129,18 @@ def test_a_job_writes_its_progress_once_per_generation(tmp_path: Path) -> None:
     assert run_job(db, claim, 60.0, threading.Event()) == "succeeded"
     phases = 2
     per_phase = generations + 1  # the initial population and each generation
-    assert writes.count("row") == phases * per_phase
-    # one summary per finished generation, and the final one with the result
-    assert writes.count("progress") == phases * per_phase + 1
+    # one row per finished generation and per record of the refinement after each GA, and one
+    # summary with each, and the final one with the result
+    assert writes.count("progress") == writes.count("row") + 1
     with db.session() as s:
         rows = s.scalars(select(JobGeneration).where(JobGeneration.job_id == job_id).order_by(JobGeneration.seq)).all()
-        assert [r.seq for r in rows] == list(range(1, phases * per_phase + 1))
-        assert [r.role for r in rows] == ["tuned"] * per_phase + ["dls_baseline"] * per_phase
+        assert [r.seq for r in rows] == list(range(1, writes.count("row") + 1))
+        ga = [r.role for r in rows if r.stage == "ga"]
+        assert ga == ["tuned"] * per_phase + ["dls_baseline"] * per_phase
+        refined = [(r.role, r.generation) for r in rows if r.stage == "refine"]
+        assert {role for role, _ in refined} == {"tuned", "dls_baseline"}
+        assert min(g for _, g in refined) == per_phase  # the refinement continues the GA's numbering
+        assert len(ga) + len(refined) == len(rows) and phases == 2
         job = s.get(TuningJob, job_id)
         assert job.status == "succeeded" and "history" not in job.progress and job.progress["records"] == len(rows)
         assert job.result["best_params"].keys() == {"lambda_max", "epsilon"}

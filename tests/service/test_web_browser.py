@@ -144,6 +144,7 @@ def test_submit_paper_task_and_see_plan_figures(driver: Any, stack: Stack) -> No
         "joint-torques",
         "carrier-wrench",
         "clearance",
+        "robustness",
         "scene-3d",
     ]
     wait_until(driver, lambda d: d.execute_script(ALL_IMAGES_LOADED, "#figures img"))

@@ -34,7 +34,7 @@ const typeChecks: [
     Equal<Schemas["AggregationName"], "max" | "rms" | "final">,
     Equal<Schemas["AttitudeTermName"], "angle" | "eq18">,
     Equal<Schemas["TimeProfile"], "trapezoidal" | "quintic">,
-    Equal<Schemas["PhaseRole"], "tuned" | "dls_baseline" | "bounded_baseline">,
+    Equal<Schemas["PhaseRole"], "tuned" | "dls_baseline" | "bounded_baseline" | "nominal_tuned">,
     Equal<Schemas["MethodOut"]["params"]["lambda_max"], number | undefined>,
     // a request's defaulted field may be left out
     Equal<IsRequired<Schemas["TaskIn"], "dt_s">, false>,
