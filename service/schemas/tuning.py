@@ -325,7 +325,7 @@ class NominalTuning(Output):
 class RobustTuningOut(Output):
     """What robust tuning found, against tuning on the nominal robot, on the same samples."""
 
-    samples: int = Field(description="sampled robots")
+    samples: int = Field(description="the count of sampled robots")
     statistic: RobustStatistic = Field(description="what was minimised over the samples' B")
     tuned: RobustPair = Field(description="the robust-tuned parameters (`best_params`)")
     dls_baseline: RobustPair | None = Field(description="the robust-tuned DLS; null without `compare_with_dls`")

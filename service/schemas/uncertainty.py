@@ -31,7 +31,7 @@ class UncertaintyIn(Input):
         default=0.0, ge=0, le=60, description="bound of each revolute joint's start error, deg"
     )
     distribution: DistributionName = Field(default="uniform", description="`uniform` (bounds) or `normal` (standard deviations)")
-    samples: int = Field(default=64, ge=1, le=MAX_SAMPLES, description="sampled robots")
+    samples: int = Field(default=64, ge=1, le=MAX_SAMPLES, description="the count of sampled robots")
     seed: int = Field(default=0, ge=0, le=2**63 - 1, description="the samples' seed")
 
     def to_engine(self) -> Uncertainty:
@@ -55,10 +55,10 @@ def _number(value: float) -> float | None:
 class SpreadOut(Output):
     """A quantity over the samples; null where a sample diverged and the statistic reaches it."""
 
-    mean: float | None = Field(description="mean over the samples")
-    p50: float | None = Field(description="median")
-    p95: float | None = Field(description="95th percentile")
-    max: float | None = Field(description="largest")
+    mean: float | None = Field(description="mean over the samples (m or deg, as the field holding it says)")
+    p50: float | None = Field(description="median (m or deg)")
+    p95: float | None = Field(description="95th percentile (m or deg)")
+    max: float | None = Field(description="largest (m or deg)")
 
     @classmethod
     def of(cls, spread: Spread, scale: float = 1.0) -> SpreadOut:
@@ -86,7 +86,7 @@ class LoopOut(Output):
     limit_broken_fraction: float = Field(
         description="the fraction of samples (0 to 1) that break a limit (joint speed, position or torque, clearance) or diverge"
     )
-    diverged: int = Field(description="samples whose plan diverged")
+    diverged: int = Field(description="the count of samples whose plan diverged")
     worst_sample: SampleOut = Field(description="the sample with the largest position error")
 
     @classmethod
@@ -113,7 +113,7 @@ class RobustnessOut(Output):
     """The plan under uncertainty: open loop (its joint motion on each sampled robot) and closed loop (the planner on
     each sampled robot with the nominal model in the controller, the pose error measured on the sampled robot)."""
 
-    samples: int = Field(description="sampled robots")
+    samples: int = Field(description="the count of sampled robots")
     success: bool = Field(description="no sample breaks a limit in closed loop")
     message: str = Field(description="the verdict, for a person")
     open_loop: LoopOut = Field(description="the plan's joint motion on each sampled robot")

@@ -133,6 +133,7 @@ async function main(baseUrl: string): Promise<void> {
         bounds: { lambda_max: [0.0001, 0.2], epsilon: [0.0001, 1.0] },
         ga: { population: 4, generations: 2, seed: 1 },
         objective: { weights: [0.5, 0.5], aggregation: "max", attitude_term: "eq18" },
+        refine: false, // the paper's GA alone: the flow counts its three generations
     };
     const submitted = await client.POST("/v1/tuning-jobs", { body: jobRequest });
     if (submitted.error !== undefined) fail("create_tuning_job", submitted.error);
