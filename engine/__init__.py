@@ -16,9 +16,11 @@ from engine.paths import PATH_TYPES, ArcPath, LinePath, Path, RasterPath, Waypoi
 from engine.planner import BatchResult, PlanOptions, PlanResult, PlanSetup, plan, plan_batch, run_plan
 from engine.redundancy import JointCentering, MinBaseRotation, make_secondary
 from engine.replay import ReplayResult, replay
+from engine.robustness import Robustness, robustness
 from engine.shortest import DurationSearch, shortest_duration
 from engine.trajectory import CartesianTask, paper_task
 from engine.tuning import Comparison, TuneProgress, TuneResult, compare, tune
+from engine.uncertainty import Uncertainty
 from engine.warmup import warm_up
 
 __all__ = [
@@ -48,9 +50,11 @@ __all__ = [
     "RasterPath",
     "ReplayResult",
     "RobotModel",
+    "Robustness",
     "State",
     "TuneProgress",
     "TuneResult",
+    "Uncertainty",
     "WaypointPath",
     "axis_values",
     "compare",
@@ -65,6 +69,7 @@ __all__ = [
     "plan",
     "plan_batch",
     "replay",
+    "robustness",
     "run_plan",
     "shortest_duration",
     "table1_robot",

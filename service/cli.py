@@ -197,12 +197,14 @@ def main(argv: list[str] | None = None) -> int:
 
         return plan_file(args.file, args.trajectory, args.json, settings)
     if args.command == "run":
-        from service.run import child_env, run
+        from service.run import child_env, migrate_in_child, run
 
-        code = migrate(settings, "head", say)
+        # The launcher only starts and watches processes: the migration (SQLAlchemy, Alembic, and
+        # the engine for the presets) runs in a child, so the launcher imports none of them.
+        env = child_env(log_format, log_level)
+        code = migrate_in_child(env, verbose=args.verbose)
         if code:
             return code
-        env = child_env(log_format, log_level)
         return run(args.host or settings.host, args.port or settings.port, args.workers, args.ready_timeout, env, say)
     return 2
 

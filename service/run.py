@@ -47,6 +47,12 @@ def start(args: list[str], env: dict[str, str]) -> subprocess.Popen[bytes]:
     return subprocess.Popen(command, env=env, process_group=0, preexec_fn=_die_with_parent)
 
 
+def migrate_in_child(env: dict[str, str], *, verbose: bool = False) -> int:
+    """``spacearm migrate`` in a child process (sharing our stdout/stderr); its exit code."""
+    command = [sys.executable, "-P", "-m", "service", "migrate", *(["--verbose"] if verbose else [])]
+    return subprocess.run(command, env=env, check=False, preexec_fn=_die_with_parent).returncode
+
+
 def wait_ready(url: str, alive: Callable[[], str | None], stop: threading.Event, timeout_s: float, say: Say) -> str | None:
     """Poll ``url/readyz`` until it answers 200. Returns None once ready, else why not: a child
     that died (``alive()`` says which), a stop request, or the time limit with the last answer."""

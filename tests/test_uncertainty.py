@@ -210,3 +210,48 @@ def test_the_refinements_nelder_mead_is_scipys() -> None:
             options={"initial_simplex": simplex, "xatol": 1e-7, "fatol": 1e-12, "maxfev": 300},
         )
         assert ours_calls == theirs_calls and fx == found.fun and np.array_equal(x, found.x)
+
+
+def test_the_open_loop_matches_a_pinocchio_monte_carlo() -> None:
+    """An independent Monte Carlo on Pinocchio: each sampled robot as a free-flyer model, the
+    plan's joint motion applied, the carrier's twist from zero centroidal momentum (Pinocchio's
+    centroidal map), the configuration integrated on the Lie group (``pin.integrate``, explicit
+    midpoint, 40 sub-steps per planner step), the end effector's placement from Pinocchio's
+    frame kinematics: each sample's largest position and attitude error against the path."""
+    pin = pytest.importorskip("pinocchio")
+    from tests.pinocchio_oracle import build_pinocchio_model
+
+    setup = _setup()
+    nominal = run_plan(setup, INVERSE)
+    uncertainty = Uncertainty(carrier_mass_rel=0.1, carrier_inertia_rel=0.1, link_mass_rel=0.1, link_com_m=0.02, samples=5)
+    r = robustness(setup, INVERSE, nominal, uncertainty)
+    samples = TASK.samples
+    substeps = 40
+    position, attitude = [], []
+    for sample in r.samples:
+        pm, frame = build_pinocchio_model(sampled_model(MODEL, sample))
+        data = pm.createData()
+
+        def rate(q_pin: np.ndarray, qd: np.ndarray, pm=pm, data=data) -> np.ndarray:  # type: ignore[no-untyped-def]
+            Ag = pin.computeCentroidalMap(pm, data, q_pin)
+            return np.concatenate([-np.linalg.solve(Ag[:, :6], Ag[:, 6:] @ qd), qd])
+
+        q_pin = np.concatenate([np.zeros(3), [0.0, 0.0, 0.0, 1.0], TASK.q0])
+        worst_p = worst_a = 0.0
+        for k in range(TASK.n_steps + 1):
+            pin.framesForwardKinematics(pm, data, q_pin)
+            placement = data.oMf[frame]
+            worst_p = max(worst_p, float(np.linalg.norm(placement.translation - samples.p_des[k])))
+            worst_a = max(worst_a, float(np.linalg.norm(pin.log3(placement.rotation @ samples.A_des[k].T))))
+            if k == TASK.n_steps:
+                break
+            h = TASK.dt / substeps
+            for _ in range(substeps):
+                half = pin.integrate(pm, q_pin, rate(q_pin, nominal.qd[k]) * (0.5 * h))
+                q_pin = pin.integrate(pm, q_pin, rate(half, nominal.qd[k]) * h)
+        position.append(worst_p)
+        attitude.append(worst_a)
+    assert r.open_loop.position_error_max.max == pytest.approx(max(position), abs=1e-7)
+    assert r.open_loop.position_error_max.mean == pytest.approx(float(np.mean(position)), abs=1e-7)
+    assert r.open_loop.attitude_error_max.max == pytest.approx(max(attitude), abs=1e-8)
+    assert r.open_loop.worst_index == int(np.argmax(position))

@@ -184,6 +184,19 @@ def test_run_prints_the_url_once_ready_and_ctrl_c_stops_everything(tmp_path: Pat
     assert httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=5).status_code == 200
     assert httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=5).status_code == 200
     assert not any("alembic" in line.lower() for line in run.seen)  # Alembic stays quiet
+    # The launcher only watches its children: no numpy, numba or SQLAlchemy in it (issue 21: lean processes)
+    maps = Path(f"/proc/{run.popen.pid}/maps").read_text()
+    assert not any(name in maps for name in ("numpy", "numba", "sqlalchemy")), "the launcher loaded a heavy library"
+    rss_mib = (
+        next(
+            int(line.split()[1])
+            for line in Path(f"/proc/{run.popen.pid}/status").read_text().splitlines()
+            if line.startswith("VmRSS")
+        )
+        / 1024
+    )
+    print(f"\nspacearm run launcher: {rss_mib:.0f} MiB")
+    assert rss_mib <= 60.0
 
     run.popen.send_signal(signal.SIGINT)
     assert run.popen.wait(60) == 0
@@ -212,4 +225,5 @@ def test_run_says_why_when_the_api_dies_before_it_is_ready(tmp_path: Path, runs:
     ), messages
     assert any(logger == "uvicorn.error" and "address already in use" in m for logger, _, m in messages)
     assert ("spacearm.worker", "INFO", "signal 15: stopping after the current generation") in messages  # stopped too
-    assert ("spacearm.run", "INFO", f"database sqlite:///{tmp_path / 'spacearm.db'} at head") in messages
+    # migrated by a child `spacearm migrate`: the launcher imports neither the database nor the engine
+    assert ("spacearm.migrate", "INFO", f"database sqlite:///{tmp_path / 'spacearm.db'} at head") in messages
