@@ -20,6 +20,7 @@ from typing_extensions import TypeAliasType
 
 from service import figures
 from service.errors import MAX_OFFSET, ApiError, NotAcceptableError
+from service.infra.admission import DEFAULT_COST
 from service.infra.db import Database
 from service.infra.settings import Settings
 from service.schemas.common import ID_PATTERN, ID_REGEX
@@ -129,10 +130,11 @@ def one_of_body(models: tuple[type, ...], examples: dict[str, Any]) -> dict[str,
 T = TypeVar("T")
 
 
-async def run_admitted(request: Request, work: Callable[[], T], what: str | None = None) -> T:
+async def run_admitted(request: Request, work: Callable[[], T], what: str | None = None, cost: float = DEFAULT_COST) -> T:
     """Run ``work()`` in the thread pool once the plan admission lets it in (``what`` names the
-    work in a 503, plans by default)."""
-    async with request.app.state.plan_admission.slot(what):
+    work in a 503, plans by default; ``cost``: its estimated joint-steps, see
+    :mod:`service.infra.admission`)."""
+    async with request.app.state.plan_admission.slot(what, cost):
         return await run_in_threadpool(work)
 
 

@@ -1,32 +1,75 @@
-"""Admission control for expensive synchronous work (plans, figure renders): at most ``slots``
-requests run at once, at most ``queue`` more wait (each for at most ``wait_s``); beyond that a
-request is refused at once with a 503 and ``Retry-After``, instead of piling up in the thread
-pool, exhausting the database pool and timing out. Waiting happens on the event loop, so a
-queued request holds neither a thread nor a database connection."""
+"""Admission control for expensive synchronous work (plans, landscapes, uploads, figure renders),
+by estimated work rather than by count.
+
+Each request states its cost (a plan: its joint-steps, :func:`plan_cost`; other work a default),
+and the admission keeps the backlog: the estimated seconds of the work admitted and not finished.
+A request is admitted when the backlog ahead of it would drain through the ``slots`` within
+``wait_s``; otherwise it is refused at once with a 503 whose ``Retry-After`` is the time until
+the backlog has drained that far. The seconds per unit of cost are measured as requests finish
+(a moving average), so the estimate follows the machine and its load. ``queue`` caps the
+requests waiting at once whatever their cost (memory; ``0``: no waiting at all), and twice
+``wait_s`` is a backstop on each wait (the work ahead may run slower than measured: requests
+running side by side share the cores). Waiting happens on the event loop, so a queued request holds
+neither a thread nor a database connection, and ``/healthz`` is answered throughout."""
 
 from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import AsyncIterator
+import time
+from collections.abc import AsyncIterator, Mapping
 from contextlib import asynccontextmanager
+from typing import Any
 
 from service.errors import ApiError
 
+#: A request's fixed cost in joint-steps (parsing, storing, answering: a few milliseconds).
+REQUEST_OVERHEAD = 4000.0
+#: The cost of work that states none (an upload, a figure), in joint-steps.
+DEFAULT_COST = 20_000.0
+#: Seconds per joint-step before anything was measured (one core, with the request's overhead).
+INITIAL_SECONDS_PER_COST = 1.5e-6
+#: Weight of the newest measurement in the moving average.
+SMOOTHING = 0.1
+#: An admitted request waits at most this many times the timeout (its estimate was too low: the
+#: work ahead ran slower than measured), then gets a 503.
+BACKSTOP = 2.0
+
 
 class OverloadedError(ApiError):
-    def __init__(self, what: str, retry_after_s: int) -> None:
+    def __init__(self, what: str, retry_after_s: int, why: str = "") -> None:
         super().__init__(
             503,
-            f"too many {what} in progress; retry after {retry_after_s} s",
+            f"too many {what} in progress{why}; retry after {retry_after_s} s",
             type_="https://spacearm.example/problems/overloaded",
             title="Service Unavailable",
             headers={"Retry-After": str(retry_after_s)},
         )
 
 
+def plan_cost(body: Mapping[str, Any]) -> float:
+    """A plan request's cost in joint-steps, from its JSON body before it is validated: the task's
+    steps (duration over ``dt_s``) times the robot's joints (an inline robot's links, else 6), twice
+    when replayed, plus two loops per sample under uncertainty, plus :data:`REQUEST_OVERHEAD`. A body
+    it cannot read costs a paper plan (it is refused by validation anyway)."""
+    try:
+        task = body.get("task") or {}
+        duration = float(task.get("duration_s") or 15.0)
+        dt = float(task.get("dt_s") or 0.25)
+        steps = min(math.ceil(duration / dt), 10_000_000) + 1 if dt > 0.0 and math.isfinite(duration / dt) else 61
+        robot = body.get("robot")
+        joints = len(robot.get("links") or []) or 6 if isinstance(robot, Mapping) else 6
+        uncertainty = body.get("uncertainty")
+        samples = int(uncertainty.get("samples", 64)) if isinstance(uncertainty, Mapping) else 0
+        runs = (2.0 if body.get("replay", True) else 1.0) + 2.0 * max(0, min(samples, 1024))
+    except (AttributeError, TypeError, ValueError, OverflowError):
+        return REQUEST_OVERHEAD + 61 * 6
+    return REQUEST_OVERHEAD + runs * steps * joints
+
+
 class Admission:
-    """A bounded semaphore with a bounded, timed queue; ``what`` names the work in messages."""
+    """Slots, a backlog of estimated work, and a cap on waiting requests; ``what`` names the work
+    in messages."""
 
     def __init__(self, what: str, slots: int, queue: int, wait_s: float) -> None:
         self.what = what
@@ -36,30 +79,50 @@ class Admission:
         self.running = 0
         self.waiting = 0
         self.refused = 0
+        self.backlog_s = 0.0  # estimated seconds of the admitted work not finished (running and waiting)
+        self.seconds_per_cost = INITIAL_SECONDS_PER_COST
         self._semaphore: asyncio.Semaphore | None = None
 
-    def _retry_after(self) -> int:
-        return max(1, math.ceil(min(self.wait_s, 30.0)))
+    def estimated_wait_s(self) -> float:
+        """How long a request admitted now would wait for a slot: the backlog over the slots."""
+        return self.backlog_s / self.slots if self.running >= self.slots else 0.0
+
+    def _refuse(self, what: str, retry_after_s: float, why: str = "") -> OverloadedError:
+        self.refused += 1
+        return OverloadedError(what, max(1, math.ceil(min(retry_after_s, 3600.0))), why)
 
     @asynccontextmanager
-    async def slot(self, what: str | None = None) -> AsyncIterator[None]:
-        """Hold one of the slots (``what`` names the work in a 503, ``self.what`` by default)."""
+    async def slot(self, what: str | None = None, cost: float = DEFAULT_COST) -> AsyncIterator[None]:
+        """Hold one of the slots for work of ``cost`` joint-steps (``what`` names it in a 503)."""
         if self._semaphore is None:  # created on the event loop that uses it
             self._semaphore = asyncio.Semaphore(self.slots)
+        name = what or self.what
+        wait = self.estimated_wait_s()
         if self.running >= self.slots and self.waiting >= self.queue:
-            self.refused += 1
-            raise OverloadedError(what or self.what, self._retry_after())
+            raise self._refuse(name, max(wait, 1.0))
+        if wait > self.wait_s:
+            raise self._refuse(name, wait - self.wait_s, f" (about {wait:.1f} s of work ahead)")
+        estimate = cost * self.seconds_per_cost
+        self.backlog_s += estimate
         self.waiting += 1
         try:
-            await asyncio.wait_for(self._semaphore.acquire(), self.wait_s)
+            if self._semaphore.locked():  # the backstop: twice the timeout, for estimates that were low
+                await asyncio.wait_for(self._semaphore.acquire(), BACKSTOP * self.wait_s)
+            else:  # a free slot: taken at once
+                await self._semaphore.acquire()
         except TimeoutError:
-            self.refused += 1
-            raise OverloadedError(what or self.what, self._retry_after()) from None
+            self.backlog_s -= estimate
+            waited = f" (waited {BACKSTOP * self.wait_s:g} s: the work ahead ran slower than estimated)"
+            raise self._refuse(name, self.estimated_wait_s(), waited) from None
         finally:
             self.waiting -= 1
         self.running += 1
+        started = time.perf_counter()
         try:
             yield
         finally:
             self.running -= 1
+            self.backlog_s = max(0.0, self.backlog_s - estimate)
+            measured = (time.perf_counter() - started) / max(cost, 1.0)
+            self.seconds_per_cost += SMOOTHING * (measured - self.seconds_per_cost)
             self._semaphore.release()

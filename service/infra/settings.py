@@ -60,9 +60,19 @@ class Settings(BaseSettings):
     max_concurrent_plans: int | None = Field(
         default=None, ge=1, le=256, description="synchronous plans computed at once per API process; default: the CPU count"
     )
-    plan_queue: int = Field(default=16, ge=0, le=10_000, description="plan requests that may wait for a slot before a 503")
+    plan_queue: int = Field(
+        default=1000,
+        ge=0,
+        le=10_000,
+        description="plan requests that may wait for a slot at once, whatever their work (0: none wait); admission is by "
+        "estimated work (plan_queue_timeout_s)",
+    )
     plan_queue_timeout_s: float = Field(
-        default=10.0, gt=0, le=600, description="how long a plan request waits for a slot before a 503 with Retry-After"
+        default=10.0,
+        gt=0,
+        le=600,
+        description="the longest estimated wait for a slot a plan request is admitted with (and waits at most); beyond, "
+        "a 503 with Retry-After",
     )
     storage_quota_bytes: int | None = Field(
         default=10 * 2**30,

@@ -30,6 +30,7 @@ from service.deps import (
     schema_ref,
 )
 from service.errors import NotAcceptableError, responses
+from service.infra.admission import plan_cost
 from service.infra.db import Database
 from service.schemas.methods import MethodName
 from service.schemas.plans import PathTypeName, PlanList, PlanOut, PlanRequest, PlanRerun, Trajectory
@@ -63,8 +64,9 @@ CREATE_PLAN_BODY = one_of_body(
     "`message` says where and why. The body is a plan request (`PlanRequest`), or a stored plan's id as "
     "`from_plan_id` with changes (`PlanRerun`: merged into that plan's stored request as a JSON merge patch, RFC "
     "7396, a changed path `type` or method `name` replacing the object whole). "
-    "Plans run a few at a time per API process; beyond a short queue the answer is "
-    "503 with `Retry-After`. `fields` chooses the sections of the answer. The answer is JSON: an `Accept` without "
+    "Plans run a few at a time per API process and wait their turn; a request whose estimated wait (the work "
+    "admitted before it, in joint-steps, at the measured speed) exceeds `SPACEARM_PLAN_QUEUE_TIMEOUT_S` is a 503 "
+    "with `Retry-After`. `fields` chooses the sections of the answer. The answer is JSON: an `Accept` without "
     "it is a 406 (the trajectory in other formats: `GET /v1/plans/{plan_id}/trajectory`).",
     responses=responses(404, 406, 422),
     dependencies=[JsonOnly],
@@ -82,7 +84,7 @@ async def create_plan(
         content = plans.body_json(plans.summary(row), sections, planned.record, row.replay)
         return Response(content, status_code=201, media_type="application/json", headers={"Location": f"/v1/plans/{row.id}"})
 
-    return await run_admitted(request, work)
+    return await run_admitted(request, work, cost=plan_cost(body))
 
 
 @router.get(
