@@ -1,14 +1,22 @@
-"""How plans' trajectories are stored: the arrays in a compressed ``.npz`` (numpy's own format,
-a zip of ``.npy`` members; read back with ``allow_pickle=False``), about a third of the size of
-the same numbers as JSON text and faster to read."""
+"""How plans' trajectories (and landscapes' grids) are stored: their float64 arrays end to end in
+one buffer compressed by zlib (level 1), behind a magic line and a JSON header of names, shapes
+and offsets: about a third of the size of the same numbers as JSON text.
+
+It replaced numpy's compressed ``.npz`` (a zip of ``.npy`` members), which cost a paper plan's
+request 3.1 ms of its 6.9 (zip members, a CRC and a deflate stream per array) against 0.2 ms.
+Rows stored as ``.npz`` are still read (``allow_pickle=False``)."""
 
 from __future__ import annotations
 
 import io
+import json
+import zlib
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+
+MAGIC = b"spacearm-arrays-1\n"
 
 
 def _array(values: Any) -> np.ndarray:
@@ -21,14 +29,29 @@ def _array(values: Any) -> np.ndarray:
 
 
 def pack_trajectory(trajectory: Mapping[str, Any]) -> bytes:
-    """The compressed bytes of a trajectory ``{name: array}``."""
-    buffer = io.BytesIO()
-    arrays: dict[str, Any] = {name: _array(values) for name, values in trajectory.items()}
-    np.savez_compressed(buffer, **arrays)
-    return buffer.getvalue()
+    """The compressed bytes of a trajectory ``{name: array}`` (float64, little-endian)."""
+    arrays = {name: np.asarray(_array(values), dtype="<f8", order="C") for name, values in trajectory.items()}
+    header: dict[str, list[Any]] = {}
+    offset = 0
+    for name, array in arrays.items():
+        header[name] = [list(array.shape), offset]
+        offset += array.nbytes
+    payload = b"".join(array.tobytes() for array in arrays.values())
+    head = json.dumps(header, separators=(",", ":")).encode()
+    return MAGIC + len(head).to_bytes(4, "little") + head + zlib.compress(payload, 1)
 
 
 def unpack_trajectory(data: bytes) -> dict[str, np.ndarray]:
-    """The arrays of :func:`pack_trajectory`'s bytes."""
-    with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-        return {name: archive[name] for name in archive.files}
+    """The arrays of :func:`pack_trajectory`'s bytes (or of a row stored as ``.npz``)."""
+    if not data.startswith(MAGIC):
+        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+            return {name: archive[name] for name in archive.files}
+    start = len(MAGIC) + 4
+    size = int.from_bytes(data[len(MAGIC) : start], "little")
+    header = json.loads(data[start : start + size])
+    payload = zlib.decompress(data[start + size :])
+    out = {}
+    for name, (shape, offset) in header.items():
+        count = int(np.prod(shape, dtype=np.int64))
+        out[name] = np.frombuffer(payload, dtype="<f8", count=count, offset=offset).reshape(tuple(shape)).copy()
+    return out

@@ -1,0 +1,49 @@
+"""The stored form of trajectories and grids: every float64 bit, shape and name back, rows stored
+as ``.npz`` by earlier versions still read, and no larger than numpy's compressed ``.npz``."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+from engine import make_inverse, paper_task, run_plan, table1_robot
+from engine.planner import PlanSetup
+from service.infra.storage import MAGIC, pack_trajectory, unpack_trajectory
+from service.usecases.plans import record_of
+
+
+def test_every_bit_shape_and_name_comes_back() -> None:
+    rng = np.random.default_rng(0)
+    arrays = {
+        "t": np.linspace(0.0, 15.0, 61),
+        "q": rng.normal(size=(61, 6)),
+        "att": rng.normal(size=(61, 3, 3)),
+        "special": np.array([np.nan, np.inf, -np.inf, -0.0, 5e-324, 1.7976931348623157e308]),
+        "empty": np.empty((0, 6)),
+        "scalar": np.array(3.5),
+        "from_lists": [[1.0, None], [None, 2.0]],
+    }
+    data = pack_trajectory(arrays)
+    assert data.startswith(MAGIC)
+    back = unpack_trajectory(data)
+    assert list(back) == list(arrays)
+    for name, value in arrays.items():
+        expected = np.array([[1.0, np.nan], [np.nan, 2.0]]) if name == "from_lists" else np.asarray(value)
+        assert back[name].shape == expected.shape and back[name].dtype == np.float64
+        assert back[name].tobytes() == expected.astype(np.float64).tobytes(), name  # bit for bit, NaN and -0.0 too
+    back["q"][0, 0] = 1.0  # writable copies
+
+
+def test_rows_stored_as_npz_are_still_read_and_the_new_form_is_no_larger() -> None:
+    model = table1_robot()
+    result = run_plan(PlanSetup(model, paper_task(model)), make_inverse("adaptive", lambda_max=0.04, epsilon=0.37))
+    record = record_of(result, model)
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **record)  # as earlier versions stored it
+    old = unpack_trajectory(buffer.getvalue())
+    new = pack_trajectory(record)
+    assert set(old) == set(record) and all(np.array_equal(old[k], record[k], equal_nan=True) for k in record)
+    assert all(np.array_equal(unpack_trajectory(new)[k], record[k], equal_nan=True) for k in record)
+    print(f"\npaper plan record: {len(new)} bytes stored, {len(buffer.getvalue())} as .npz")
+    assert len(new) <= 1.1 * len(buffer.getvalue())
