@@ -49,6 +49,7 @@ docs: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_engine.py
+	$(BIN)/python bench/bench_anchor.py
 
 # The 3D view's three.js bundle (service/static/three-<version>.min.js), rebuilt from the versions
 # pinned by web/package-lock.json (needs Node.js and npm; the test suite checks it with --check).
