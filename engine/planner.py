@@ -28,7 +28,7 @@ import itertools
 import math
 import os
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -317,6 +317,35 @@ def _trace_arrays(n_samples: int, n: int, rows: int) -> tuple[FloatArray, ...]:
     )
 
 
+def _kept(
+    setup: PlanSetup, inverse: Inverse, given: FloatArray | None = None
+) -> tuple[FloatArray, tuple[FloatArray, ...], tuple[FloatArray, ...]]:
+    """One plan of ``setup`` (the first parameter set of ``inverse``; ``given`` joint rates instead
+    of its own, if any) with every sample kept: the kernel's metrics row ``(N_METRICS,)``, the
+    trace and the executed trajectory's dynamics buffers."""
+    count = setup.task.n_steps + 1
+    n = setup.model.n_joints
+    trace = _trace_arrays(count, n, TRACKS[setup.task.tracks])
+    t_spline, _, qd_spline, qdd, tau, force, torque = dynamics_kernels.trajectory_buffers(count, n, count)
+    dyn = (t_spline, trace[0], qd_spline, qdd, tau, force, torque)  # the spline runs through the trace's samples
+    raw = np.empty(plan_kernels.N_METRICS)
+    args = setup.kernel_args(inverse, kernel_param_rows(inverse, 1)[0], record=True, given=given)
+    plan_kernels.simulate(*args, True, trace, dyn, raw)
+    return raw, trace, dyn
+
+
+def _for_each(count: int, fn: Callable[[int], None], threads: int | None) -> None:
+    """``fn(i)`` for ``i`` in ``range(count)``, spread over ``threads`` threads (default
+    :func:`default_threads`)."""
+    workers = max(1, threads if threads is not None else default_threads())
+    if workers == 1 or count == 1:
+        for i in range(count):
+            fn(i)
+        return
+    for f in [_pool(workers).submit(fn, i) for i in range(count)]:
+        f.result()
+
+
 def _clearance_problem(metrics: Metrics[float], geometry: Geometry | None) -> str:
     """The verdict's words for a plan that came closer than the clearance: the pair, the time
     and the distance (negative: the shapes overlap)."""
@@ -532,14 +561,9 @@ def run_plan(setup: PlanSetup, inverse: Inverse) -> PlanResult:
     """The plan of a checked setup (see :func:`plan`), every sample kept."""
     model, task, options = setup.model, setup.task, setup.options
     samples = task.samples
-    count = samples.t.shape[0]
-    trace = _trace_arrays(count, model.n_joints, TRACKS[task.tracks])
-    t_spline, _, qd_spline, qdd, tau, force, torque = dynamics_kernels.trajectory_buffers(count, model.n_joints, count)
-    dyn = (t_spline, trace[0], qd_spline, qdd, tau, force, torque)  # the spline runs through the trace's samples
-    raw = np.empty((1, plan_kernels.N_METRICS))
-    args = setup.kernel_args(inverse, kernel_param_rows(inverse, 1)[0], record=True)
-    plan_kernels.simulate(*args, True, trace, dyn, raw[0])
-    metrics = setup.metrics(raw).item(0)
+    raw, trace, dyn = _kept(setup, inverse)
+    _, _, _, qdd, tau, force, torque = dyn
+    metrics = setup.metrics(raw[None]).item(0)
     success, message = _verdict(metrics, options, model, setup.geometry)
     q, qd, base_p, base_A, ee_p, ee_A, sv, det, damping, pos_err, att_err, clearance, clearance_pair = trace
     if not success:
@@ -709,17 +733,11 @@ def evaluate_setups(setups: Sequence[PlanSetup], inverse: Inverse, *, threads: i
     params = kernel_param_rows(inverse, 1)
     args = [setup.kernel_args(inverse, params) for setup in setups]
     out = np.empty((len(args), plan_kernels.N_METRICS))
-    workers = max(1, threads if threads is not None else default_threads())
 
     def run(i: int) -> None:
         plan_kernels.evaluate_range(*args[i], 0, 1, out[i : i + 1])
 
-    if workers == 1 or len(args) == 1:
-        for i in range(len(args)):
-            run(i)
-        return out
-    for f in [_pool(workers).submit(run, i) for i in range(len(args))]:
-        f.result()
+    _for_each(len(args), run, threads)
     return out
 
 
@@ -739,25 +757,13 @@ def evaluate_traced(
     every sample kept but only the tracking errors returned: the kernel's metrics rows
     ``(S, N_METRICS)`` and the position ``(S, N+1)`` m and attitude ``(S, N+1)`` rad errors.
     ``given (N+1, n)``: joint rates applied instead of the inverse's. Spread over ``threads``."""
-    params = kernel_param_rows(inverse, 1)[0]
     count = setups[0].task.n_steps + 1
-    n, rows = setups[0].model.n_joints, TRACKS[setups[0].task.tracks]
     raw = np.empty((len(setups), plan_kernels.N_METRICS))
     position, attitude = np.empty((len(setups), count)), np.empty((len(setups), count))
-    workers = max(1, threads if threads is not None else default_threads())
 
     def run(i: int) -> None:
-        trace = _trace_arrays(count, n, rows)
-        t_spline, _, qd_spline, qdd, tau, force, torque = dynamics_kernels.trajectory_buffers(count, n, count)
-        dyn = (t_spline, trace[0], qd_spline, qdd, tau, force, torque)
-        args = setups[i].kernel_args(inverse, params, record=True, given=given)
-        plan_kernels.simulate(*args, True, trace, dyn, raw[i])
+        raw[i], trace, _ = _kept(setups[i], inverse, given)
         position[i], attitude[i] = trace[9], trace[10]
 
-    if workers == 1 or len(setups) == 1:
-        for i in range(len(setups)):
-            run(i)
-    else:
-        for f in [_pool(workers).submit(run, i) for i in range(len(setups))]:
-            f.result()
+    _for_each(len(setups), run, threads)
     return raw, position, attitude

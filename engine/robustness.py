@@ -111,7 +111,7 @@ def _loop(
     pos_max = np.where(finite, np.asarray(metrics.position_error_max, dtype=float), np.inf)
     att_max = np.where(finite, np.asarray(metrics.attitude_error_max, dtype=float), np.inf)
     broken = ~np.isfinite(np.asarray(metrics.objective_b, dtype=float))
-    worst = int(np.argmax(np.where(np.isfinite(pos_max), pos_max, np.inf)))
+    worst = int(np.argmax(pos_max))  # a diverged sample's inf first
     return LoopRobustness(
         position_error_max=Spread.of(pos_max),
         attitude_error_max=Spread.of(att_max),

@@ -178,9 +178,9 @@ def draw(uncertainty: Uncertainty, model: RobotModel) -> list[Sample]:
     z = _unit(points, uncertainty.distribution)
     u = uncertainty
     revolute = ~np.asarray(model.prismatic)
+    col = 2 + 2 * n  # the CoM offsets' columns, then the q0 errors'
     out = []
     for row, unit in zip(points, z, strict=True):
-        col = 2 + 2 * n
         if u.distribution == "uniform":
             # a vector uniform in the ball: radius R u^(1/3), direction uniform on the sphere
             cube = row[col : col + 3 * n].reshape(n, 3)
