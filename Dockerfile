@@ -18,10 +18,10 @@ COPY service ./service
 COPY migrations ./migrations
 RUN pip install --no-cache-dir . && rm -rf /root/.cache
 USER spacearm
-# Compile the kernels into the cache now (about a minute), from / so that the installed package
-# is the one imported (numba keys its cache by the source path); a host with another CPU
-# recompiles into the same directory on its first start.
-RUN cd / && python -c "import engine; print(f'kernels compiled in {engine.warm_up():.0f} s')"
+# Compile the kernels into the cache now (about a minute, two processes), from / so that the
+# installed package is the one imported (numba keys its cache by the source path); a host with
+# another CPU recompiles into the same directory on its first start (`spacearm run` says so).
+RUN cd / && spacearm compile
 VOLUME ["/data"]
 EXPOSE 8000
 HEALTHCHECK --interval=30s --timeout=5s --start-period=90s --retries=3 \

@@ -21,8 +21,9 @@ $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP) $(RUN_STAMP)
 
-# The service (`spacearm run`): migrate, then the API on $$SPACEARM_HOST:$$SPACEARM_PORT
-# (127.0.0.1:8000) and one worker; the URL is printed once /readyz answers; Ctrl-C stops both.
+# The service (`spacearm run`): migrate (and compile the kernels on a first run, with progress),
+# then the API on $$SPACEARM_HOST:$$SPACEARM_PORT (127.0.0.1:8000) and one worker; the URL is
+# printed once the API is ready; Ctrl-C stops both.
 # More options: make run RUN_ARGS='--workers 2 --log-format json' (spacearm run --help).
 run: $(RUN_STAMP)
 	@$(BIN)/spacearm run $(RUN_ARGS)
@@ -35,12 +36,12 @@ typecheck: $(STAMP)
 	$(BIN)/mypy engine service
 
 # The suite runs in TEST_WORKERS processes (pytest-xdist), a test file each at a time: most tests
-# wait on servers, workers and jobs of their own. The kernels are compiled (or loaded) once first.
+# wait on servers, workers and jobs of their own. The kernels are compiled once first (if needed).
 TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(BIN)/ruff check engine service tests bench
 	$(BIN)/mypy engine service
-	$(BIN)/python -c "import engine; engine.warm_up()"
+	$(BIN)/spacearm compile
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The reference (docs/) as a static site in var/site; `$(BIN)/mkdocs serve` to read it while editing.

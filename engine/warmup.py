@@ -2,38 +2,53 @@
 
 numba compiles a kernel on its first call and keeps the machine code in its on-disk cache
 (``NUMBA_CACHE_DIR``, or ``__pycache__`` beside the kernels); a process that starts with a warm
-cache loads the kernels in about a second, a cold one compiles them (tens of seconds). The API
+cache loads the kernels in under a second, a cold one compiles them (about a minute). The API
 and the workers call :func:`warm_up` at start-up so that no user request pays for it.
+
+The kernels fall into :data:`PARTS` that share no compiled function worth counting, so a cold
+cache is filled by one process per part at once (:func:`compile_kernels`, what ``spacearm
+compile`` and ``spacearm run`` use): the planner's step loop alone is most of the work, and the
+other part runs beside it on the second core. A marker file (:mod:`engine.kernels.cache`) records
+that every part was compiled for this CPU, so a later start knows without importing anything heavy.
+
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import subprocess
+import sys
+import tempfile
 import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
 
 import numpy as np
 
 from engine.inverses import make_inverse, method_names
 from engine.jacobian import generalized_jacobian
+from engine.kernels import replay as replay_kernels
+from engine.kernels.cache import marker_path
+from engine.kernels.jit import CACHE_DIR
 from engine.kinematics import State, forward_kinematics
-from engine.model import table1_robot
+from engine.model import RobotModel, table1_robot
 from engine.planner import plan, plan_batch
 from engine.replay import replay
 from engine.spatial import exp_so3, log_so3, matrix_to_quaternion, quaternion_to_matrix, rotation_angle
 from engine.trajectory import CartesianTask
 
+Q0 = np.radians([175.0, -60.0, -60.0, 0.0, 210.0, 5.0])
 
-def warm_up() -> float:
-    """Run every kernel once on a two-step task of the Table-1 robot (every inverse method,
-    plans with and without traces, the replay, the GJM and the SO(3) helpers). Returns the
-    seconds it took."""
-    start = time.perf_counter()
-    robot = table1_robot()
-    q0 = np.radians([175.0, -60.0, -60.0, 0.0, 210.0, 5.0])
-    fk = forward_kinematics(robot, State(q0))
-    task = CartesianTask.from_q0(
+
+def _task(robot: RobotModel) -> CartesianTask:
+    """A two-step task of the Table-1 robot (every code path of a plan, in microseconds)."""
+    fk = forward_kinematics(robot, State(Q0))
+    return CartesianTask.from_q0(
         robot,
-        q0,
+        Q0,
         fk.ee_position + 0.001,
         fk.ee_attitude,
         duration=0.5,
@@ -41,13 +56,136 @@ def warm_up() -> float:
         dt=0.25,
         joint_speed_limit=math.radians(6.0),
     )
+
+
+def _planner(robot: RobotModel) -> None:
+    """The step loop: a plan of every inverse method with its trace, and a batch of metrics."""
+    task = _task(robot)
     for name in method_names():
-        result = plan(robot, task, make_inverse(name), feedback_gain=0.5)
-        make_inverse(name).solve(generalized_jacobian(robot, State(q0)).J_g, np.ones(6))
-    replay(robot, result)
+        plan(robot, task, make_inverse(name), feedback_gain=0.5)
     plan_batch(robot, task, "adaptive", {"lambda_max": [0.05, 0.06], "epsilon": [0.06, 0.07]}, threads=2)
+
+
+def _tools(robot: RobotModel) -> None:
+    """Everything but the step loop: the replay's integrators (on a still motion of three
+    samples, the argument types of :func:`engine.replay.replay`), every inverse on one GJM, and the
+    SO(3) helpers."""
+    t = np.array([0.0, 0.25, 0.5])
+    q = np.repeat(Q0[None], 3, axis=0)
+    qd = np.zeros_like(q)
+    ys = np.zeros((3, 7))
+    ys[0, 3] = 1.0
+    replay_kernels.integrate(robot.chain, t, q, qd, ys, 1e-9, 1e-12)
+    samples = (np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((3, 3, 3)), np.empty(3), np.empty(3), np.empty((3, 3)))
+    replay_kernels.evaluate_samples(robot.chain, q, qd, ys, *samples)
+    J_g = generalized_jacobian(robot, State(Q0)).J_g
+    for name in method_names():
+        make_inverse(name).solve(J_g, np.ones(6))
     R = exp_so3(np.array([0.1, 0.2, 0.3]))
     log_so3(R)
     rotation_angle(R)
     quaternion_to_matrix(matrix_to_quaternion(R))
+
+
+#: The kernels by part, in the order a single process warms them.
+PARTS: dict[str, Callable[[RobotModel], None]] = {"planner": _planner, "tools": _tools}
+
+
+def warm_up(parts: Sequence[str] = tuple(PARTS)) -> float:
+    """Run every kernel of ``parts`` (default: all) once on a two-step task of the Table-1 robot
+    (every inverse method, plans with and without traces, the replay, the GJM and the SO(3)
+    helpers). Returns the seconds it took."""
+    unknown = set(parts) - set(PARTS)
+    if unknown:
+        raise ValueError(f"unknown kernel part(s) {sorted(unknown)}; the parts are {list(PARTS)}")
+    start = time.perf_counter()
+    robot = table1_robot()
+    for name in parts:
+        PARTS[name](robot)
+    if set(parts) == set(PARTS):
+        # the replay as the API runs it, from a real plan (its arguments' types as callers pass them)
+        replay(robot, plan(robot, _task(robot), make_inverse("adaptive")))
     return time.perf_counter() - start
+
+
+def compiled() -> bool:
+    """Whether :func:`compile_kernels` finished for this cache and CPU (the kernels then load)."""
+    return marker_path(CACHE_DIR).exists()
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What :func:`compile_kernels` reports: ``done`` parts of ``total``, the parts still running
+    and the seconds since it started."""
+
+    done: int
+    total: int
+    running: tuple[str, ...]
+    seconds: float
+
+
+class CompileError(RuntimeError):
+    """A part failed to compile (the message has the child's last lines)."""
+
+
+def compile_kernels(
+    on_progress: Callable[[Progress], None] | None = None, *, every_s: float = 10.0, stop: Callable[[], bool] | None = None
+) -> float:
+    """Compile every part into the kernel cache, one child process per part at once, and write
+    the marker of :func:`engine.kernels.cache.marker_path`. ``on_progress`` is called when a part
+    ends and every ``every_s`` seconds meanwhile; ``stop()`` true ends the children and raises
+    :class:`CompileError`. Returns the seconds it took."""
+    start = time.monotonic()
+    with contextlib.ExitStack() as files:
+        # the children's output goes to files, not pipes: a child never blocks on a full pipe
+        logs = {name: files.enter_context(tempfile.TemporaryFile("w+")) for name in PARTS}
+        children = {name: subprocess.Popen(_command(name), stdout=logs[name], stderr=subprocess.STDOUT) for name in PARTS}
+        running = dict(children)
+        try:
+            _watch(running, logs, start, on_progress, every_s, stop)
+        finally:
+            for child in running.values():
+                child.kill()
+                child.wait()
+    CACHE_DIR.mkdir(parents=True, exist_ok=True)
+    marker_path(CACHE_DIR).write_text(f"compiled in {time.monotonic() - start:.1f} s\n")
+    return time.monotonic() - start
+
+
+def _command(part: str) -> list[str]:
+    """A child warming ``part`` with this very engine package (numba keys its cache by the kernels'
+    source paths: a source tree in the working directory must not stand in for it)."""
+    root = str(Path(__file__).resolve().parent.parent)
+    code = "import sys; sys.path.insert(0, sys.argv[1]); from engine.warmup import warm_up; warm_up(sys.argv[2:])"
+    return [sys.executable, "-P", "-c", code, root, part]
+
+
+def _watch(
+    running: dict[str, subprocess.Popen[bytes]],
+    logs: Mapping[str, IO[str]],
+    start: float,
+    on_progress: Callable[[Progress], None] | None,
+    every_s: float,
+    stop: Callable[[], bool] | None,
+) -> None:
+    """Wait for the ``running`` children (removing each as it ends), reporting progress."""
+    last = start
+    while running:
+        time.sleep(0.1)
+        if stop is not None and stop():
+            raise CompileError("stopped before the kernels were compiled")
+        for name, child in list(running.items()):
+            if child.poll() is None:
+                continue
+            del running[name]
+            if child.returncode != 0:
+                logs[name].seek(0)
+                tail = "\n".join(logs[name].read().strip().splitlines()[-5:])
+                raise CompileError(f"compiling the {name} kernels failed (exit code {child.returncode}): {tail}")
+            last = time.monotonic()
+            if on_progress is not None:
+                on_progress(Progress(len(PARTS) - len(running), len(PARTS), tuple(running), last - start))
+        now = time.monotonic()
+        if running and on_progress is not None and now - last >= every_s:
+            last = now
+            on_progress(Progress(len(PARTS) - len(running), len(PARTS), tuple(running), now - start))

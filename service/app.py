@@ -39,6 +39,7 @@ from service.routers import (
     tuning,
     web,
 )
+from service.run import notify_ready
 from service.usecases.job_events import JobFeeds
 from service.usecases.plans import rehearse
 from service.usecases.robots import seed_presets
@@ -111,6 +112,7 @@ class Kernels:
             self.error = f"{type(exc).__name__}: {exc}"
             log.exception("loading the engine kernels failed")
             self.ready.set()
+            notify_ready(f"loading the engine kernels failed: {self.error}")
             return
         try:
             rehearse(self.db, self.settings)
@@ -119,6 +121,7 @@ class Kernels:
             log.info("request rehearsal skipped: %s: %s", type(exc).__name__, exc)
         finally:
             self.ready.set()
+            notify_ready("ready")
 
     async def _visit_routers(self) -> None:
         """FastAPI prepares each router's routes on the first request that reaches it; send each

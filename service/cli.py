@@ -81,6 +81,11 @@ def build_parser() -> argparse.ArgumentParser:
         description=f"Upgrade the database to a revision and add the robot presets; {db_help}.",
     )
     m.add_argument("--revision", default="head", help="Alembic revision to upgrade to (default: head)")
+    m.add_argument(
+        "--no-presets",
+        action="store_true",
+        help="only the schema; the API adds the presets when it starts (what `spacearm run` does; default: off)",
+    )
 
     def listen_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("--host", default=None, help=f"address to bind (default: $SPACEARM_HOST, else {_default('host')})")
@@ -103,6 +108,16 @@ def build_parser() -> argparse.ArgumentParser:
         description=f"Claim and run tuning jobs from the queue; {db_help}. SIGTERM/Ctrl-C puts a running job back.",
     )
     w.add_argument("--once", action="store_true", help="run at most one job, then exit (default: run until stopped)")
+
+    c = sub.add_parser(
+        "compile",
+        parents=[logs],
+        help="compile the engine's kernels into their cache (once per install, upgrade or CPU), with progress",
+        description="Compile the engine's numba kernels into their on-disk cache, in one process per part at once, "
+        "saying how far it is every 10 s; nothing to do when they were compiled for this CPU already. `spacearm run` "
+        "does this before starting the API and the workers; the Docker image does it when built.",
+    )
+    c.add_argument("--force", action="store_true", help="compile even if the cache says it is complete (default: off)")
 
     r = sub.add_parser(
         "run",
@@ -148,8 +163,7 @@ def display_url(url: str) -> str:
     return make_url(url).render_as_string(hide_password=True)
 
 
-def migrate(settings: Settings, revision: str, say: Say) -> int:
-    from service.infra.db import Database
+def migrate(settings: Settings, revision: str, say: Say, presets: bool = True) -> int:
     from service.infra.migrate import MigrationError, upgrade
 
     try:
@@ -157,12 +171,41 @@ def migrate(settings: Settings, revision: str, say: Say) -> int:
     except MigrationError as exc:
         say(f"spacearm migrate: {exc}", True)
         return 1
-    from service.usecases.robots import seed_presets  # the engine: only once the schema is there
+    if presets:
+        from service.infra.db import Database
+        from service.usecases.robots import seed_presets  # the engine: only once the schema is there
 
-    db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
-    seed_presets(db)
-    db.dispose()
+        db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
+        seed_presets(db)
+        db.dispose()
     say(f"database {display_url(settings.database_url)} at {revision}", False)
+    return 0
+
+
+def compile_kernels(force: bool, say: Say) -> int:
+    """``spacearm compile``: fill the kernel cache unless it is complete for this CPU."""
+    from engine.kernels.jit import CACHE_DIR
+    from engine.warmup import PARTS, CompileError, Progress, compile_kernels, compiled
+
+    if compiled() and not force:
+        say(f"engine kernels: compiled already for this CPU (cache {CACHE_DIR})", False)
+        return 0
+    say(
+        f"compiling the engine's kernels for this CPU into {CACHE_DIR} (once per install, upgrade or CPU; "
+        f"about a minute on 2 cores), {len(PARTS)} parts at once",
+        False,
+    )
+
+    def progress(p: Progress) -> None:
+        running = f"; compiling: {', '.join(p.running)}" if p.running else ""
+        say(f"compiling kernels: {p.done} of {p.total} parts done after {p.seconds:.0f} s{running}", False)
+
+    try:
+        seconds = compile_kernels(progress)
+    except CompileError as exc:
+        say(f"spacearm compile: {exc}", True)
+        return 1
+    say(f"engine kernels compiled in {seconds:.0f} s", False)
     return 0
 
 
@@ -175,10 +218,16 @@ def main(argv: list[str] | None = None) -> int:
     say = messenger(log_format, f"spacearm.{args.command}")
 
     if args.command == "migrate":
-        return migrate(settings, args.revision, say)
+        return migrate(settings, args.revision, say, presets=not args.no_presets)
+    if args.command == "compile":
+        return compile_kernels(args.force, say)
     if args.command == "serve":
         from service.app import create_app
         from service.infra.server import serve
+        from service.run import pass_gate
+
+        if not pass_gate():  # started by `spacearm run`, whose migration or compilation failed
+            return 1
 
         settings = settings.model_copy(update={"host": args.host or settings.host, "port": args.port or settings.port})
         if not settings.keys() and settings.host not in LOCAL_HOSTS:
@@ -188,8 +237,11 @@ def main(argv: list[str] | None = None) -> int:
         serve(create_app(settings), settings, log_level, log_config)
         return 0
     if args.command == "worker":
+        from service.run import pass_gate
         from service.worker import run_worker
 
+        if not pass_gate():
+            return 1
         run_worker(settings, once=args.once)
         return 0
     if args.command == "plan":
@@ -197,15 +249,21 @@ def main(argv: list[str] | None = None) -> int:
 
         return plan_file(args.file, args.trajectory, args.json, settings)
     if args.command == "run":
-        from service.run import child_env, migrate_in_child, run
+        from service.run import child_env, run
 
         # The launcher only starts and watches processes: the migration (SQLAlchemy, Alembic, and
-        # the engine for the presets) runs in a child, so the launcher imports none of them.
+        # the engine for the presets) and the kernels' compilation run in children, side by side,
+        # while the API and the workers import their code; the launcher imports none of them.
         env = child_env(log_format, log_level)
-        code = migrate_in_child(env, verbose=args.verbose)
-        if code:
-            return code
-        return run(args.host or settings.host, args.port or settings.port, args.workers, args.ready_timeout, env, say)
+        return run(
+            args.host or settings.host,
+            args.port or settings.port,
+            args.workers,
+            args.ready_timeout,
+            env,
+            say,
+            verbose=args.verbose,
+        )
     return 2
 
 

@@ -32,26 +32,18 @@ the job's progress too, so a running job's convergence figure is refreshed every
 
 from __future__ import annotations
 
+import functools
 import io
 import itertools
 import threading
+import types
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
-
-import matplotlib
-import matplotlib.lines
-import matplotlib.patches
-import matplotlib.path
-
-matplotlib.use("Agg")
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.figure import Figure
-from matplotlib.ticker import FixedLocator, FuncFormatter, MaxNLocator, NullLocator
 
 from engine.errors import ParameterError
 from engine.geometry import Shape, distance, shape_outline
@@ -59,6 +51,11 @@ from engine.inverses import METHODS
 from engine.kinematics import kinematics_batch
 from engine.model import RobotModel
 from engine.spatial import log_so3, quaternion_to_matrix
+
+if TYPE_CHECKING:
+    import matplotlib.path
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 #: The formats of the figure endpoints and their media types (:func:`render` writes them all;
 #: PDF: vector, fonts embedded as TrueType).
@@ -75,19 +72,34 @@ DPI = 150
 #: Joint speeds peaking above this many times the speed limit go on a symmetric-log axis.
 SYMLOG_FACTOR = 10.0
 
-matplotlib.rcParams.update(
-    {
-        "svg.fonttype": "none",  # text stays text: smaller SVG, selectable labels
-        "svg.hashsalt": "spacearm",  # stable element ids: the same plan gives the same SVG bytes
-        "pdf.fonttype": 42,  # TrueType in PDFs: text stays text
-        "axes.grid": True,
-        "grid.alpha": 0.3,
-        "font.size": 9,
-        "legend.fontsize": 8,
-        "path.simplify": True,
-        "hatch.linewidth": 0.6,
-    }
-)
+
+@functools.cache
+def mpl() -> types.ModuleType:
+    """matplotlib (Agg backend, our settings), imported by the first figure drawn rather than
+    with this module: it costs a process about 30 MiB and a third of a second, which an API or
+    worker that draws no figure need not pay."""
+    import matplotlib
+    import matplotlib.figure
+    import matplotlib.lines
+    import matplotlib.patches
+    import matplotlib.path
+    import matplotlib.ticker
+
+    matplotlib.use("Agg")
+    matplotlib.rcParams.update(
+        {
+            "svg.fonttype": "none",  # text stays text: smaller SVG, selectable labels
+            "svg.hashsalt": "spacearm",  # stable element ids: the same plan gives the same SVG bytes
+            "pdf.fonttype": 42,  # TrueType in PDFs: text stays text
+            "axes.grid": True,
+            "grid.alpha": 0.3,
+            "font.size": 9,
+            "legend.fontsize": 8,
+            "path.simplify": True,
+            "hatch.linewidth": 0.6,
+        }
+    )
+    return matplotlib
 
 
 class PlanData:
@@ -327,7 +339,7 @@ def _legend(ax: Axes, ncol: int = 1, extra: Sequence[Any] = ()) -> None:
 
 
 def _new(rows: int, title: str) -> tuple[Figure, list[Axes]]:
-    fig = Figure(figsize=FIGSIZE, dpi=DPI, layout="constrained")
+    fig = mpl().figure.Figure(figsize=FIGSIZE, dpi=DPI, layout="constrained")
     axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0].tolist()
     fig.suptitle(title, fontsize=10)
     axes[-1].set_xlabel("time t [s]")
@@ -423,9 +435,9 @@ def _speed_scale(ax: Axes, speeds_deg_s: np.ndarray, limit: float | None) -> Non
         ax.set_yscale("symlog", linthresh=threshold, linscale=1.0)
         # ticks at 0 and the powers of ten beyond the linear range (±1 would overprint 0)
         decades = 10.0 ** np.arange(np.ceil(np.log10(threshold)), np.ceil(np.log10(peak)) + 1)
-        ax.yaxis.set_major_locator(FixedLocator([*(-decades[::-1]).tolist(), 0.0, *decades.tolist()]))
-        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}".replace("-", "\u2212")))
-        ax.yaxis.set_minor_locator(NullLocator())
+        ax.yaxis.set_major_locator(mpl().ticker.FixedLocator([*(-decades[::-1]).tolist(), 0.0, *decades.tolist()]))
+        ax.yaxis.set_major_formatter(mpl().ticker.FuncFormatter(lambda v, _: f"{v:g}".replace("-", "\u2212")))
+        ax.yaxis.set_minor_locator(mpl().ticker.NullLocator())
         ax.set_ylabel(f"joint velocity [deg/s]\n(symmetric log; linear within ±{threshold:.3g})")
 
 
@@ -759,7 +771,9 @@ def draw_scene(ax: Any, data: PlanData) -> None:
         pad = 0.04 * span.max()
         low, span = low - pad, span + 2 * pad
         for axis, extent in zip((ax.xaxis, ax.yaxis, ax.zaxis), span, strict=True):
-            axis.set_major_locator(MaxNLocator(nbins=max(2, round(SCENE_TICKS * extent / span.max())), steps=[1, 2, 2.5, 5, 10]))
+            axis.set_major_locator(
+                mpl().ticker.MaxNLocator(nbins=max(2, round(SCENE_TICKS * extent / span.max())), steps=[1, 2, 2.5, 5, 10])
+            )
         ax.set_xlim(low[0], low[0] + span[0])
         ax.set_ylim(low[1], low[1] + span[1])
         ax.set_zlim(low[2], low[2] + span[2])
@@ -811,7 +825,7 @@ def closest_pair(data: PlanData) -> tuple[np.ndarray, str] | None:
 
 def fig_scene_3d(data: PlanData) -> Figure:
     """:func:`draw_scene` of one plan, its legend on the right."""
-    fig = Figure(figsize=(9.0, 6.4), dpi=DPI, layout="constrained")
+    fig = mpl().figure.Figure(figsize=(9.0, 6.4), dpi=DPI, layout="constrained")
     ax = fig.add_subplot(projection="3d")
     fig.suptitle(_title(data, "3D view: end-effector path, arm and carrier"), fontsize=10)
     draw_scene(ax, data)
@@ -906,7 +920,7 @@ def fig_compare(plans: Sequence[PlanData], name: str) -> Figure:
     spec = PLAN_FIGURE_SPECS[name]
     k = len(plans)
     if spec.rows == 0:
-        fig = Figure(figsize=(4.6 * k, 6.4), dpi=DPI, layout="constrained")
+        fig = mpl().figure.Figure(figsize=(4.6 * k, 6.4), dpi=DPI, layout="constrained")
         fig.suptitle(f"{spec.heading} compared", fontsize=10)
         scenes = [fig.add_subplot(1, k, c + 1, projection="3d") for c in range(k)]
         for ax, data in zip(scenes, plans, strict=True):
@@ -915,7 +929,7 @@ def fig_compare(plans: Sequence[PlanData], name: str) -> Figure:
             # a legend under each scene: the instants and the drift's magnification are the plan's own
             ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=2, fontsize=6.5, framealpha=0.9)
         return fig
-    fig = Figure(figsize=(3.6 * k + 2.8, 2.5 * spec.rows + 1.0), dpi=DPI, layout="constrained")
+    fig = mpl().figure.Figure(figsize=(3.6 * k + 2.8, 2.5 * spec.rows + 1.0), dpi=DPI, layout="constrained")
     fig.suptitle(f"{spec.heading} compared", fontsize=10)
     grid = fig.subplots(spec.rows, k, sharex="col", sharey="row", squeeze=False)
     for c, data in enumerate(plans):
@@ -955,7 +969,7 @@ def _objective_unit(objective: dict[str, Any] | None) -> str:
 def fig_compare_torques(plans: Sequence[PlanData]) -> Figure:
     """Several plans' joint torques (forces) overlaid, one panel per joint, with its limit."""
     count = max((data.q.shape[1] for data in plans), default=1)
-    fig = Figure(figsize=(FIGSIZE[0], max(FIGSIZE[1], 1.25 * count + 1.0)), dpi=DPI, layout="constrained")
+    fig = mpl().figure.Figure(figsize=(FIGSIZE[0], max(FIGSIZE[1], 1.25 * count + 1.0)), dpi=DPI, layout="constrained")
     axes = fig.subplots(count, 1, sharex=True, squeeze=False)[:, 0].tolist()
     fig.suptitle("Joint torques compared (executed trajectories)", fontsize=10)
     axes[-1].set_xlabel("time t [s]")
@@ -990,7 +1004,7 @@ def fig_convergence(job: dict[str, Any]) -> Figure:
     a finished job without them falls back to its result's history. The y label names the job's
     attitude term (``objective``: its request's objective settings)."""
     history = _job_history(job)
-    fig = Figure(figsize=(9.0, 4.4), dpi=DPI, layout="constrained")
+    fig = mpl().figure.Figure(figsize=(9.0, 4.4), dpi=DPI, layout="constrained")
     ax = fig.subplots()
     status = job.get("status", "?")
     progress = job.get("progress") or {}
@@ -1011,7 +1025,7 @@ def fig_convergence(job: dict[str, Any]) -> Figure:
         ax.text(0.5, 0.5, f"no generation finished yet ({status})", transform=ax.transAxes, ha="center", va="center")
     elif _positive(ax):
         ax.set_yscale("log")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.xaxis.set_major_locator(mpl().ticker.MaxNLocator(integer=True))
     ax.set_xlabel("generation")
     ax.set_ylabel(_objective_unit(job.get("objective")))
     _legend(ax)
@@ -1082,7 +1096,7 @@ def cells_path(xe: np.ndarray, ye: np.ndarray, mask: np.ndarray) -> matplotlib.p
     pattern (a hatch per cell shows stripes where the cells meet, and seams in SVG)."""
     vertices: list[tuple[float, float]] = []
     codes: list[int] = []
-    P = matplotlib.path.Path
+    P = mpl().path.Path
     move, line, close = int(P.MOVETO), int(P.LINETO), int(P.CLOSEPOLY)
     for j in range(mask.shape[1]):
         column = np.concatenate([[False], mask[:, j], [False]]).astype(np.int8)
@@ -1109,7 +1123,7 @@ def fig_landscape(data: dict[str, Any]) -> Figure:
     b = np.asarray(grids["objective_b"], dtype=float)
     feasible = np.asarray(grids["feasible"], dtype=float) > 0.5
     x_log, y_log = data.get("x_scale") == "log", data.get("y_scale") == "log"
-    fig = Figure(figsize=(8.0, 6.0), dpi=DPI, layout="constrained")
+    fig = mpl().figure.Figure(figsize=(8.0, 6.0), dpi=DPI, layout="constrained")
     ax = fig.subplots()
     xe, ye = _cell_edges(x, x_log), _cell_edges(y, y_log)
     shown = np.where(feasible & (b > 0), np.log10(np.where(b > 0, b, 1.0)), np.nan)
@@ -1117,7 +1131,7 @@ def fig_landscape(data: dict[str, Any]) -> Figure:
     colorbar = fig.colorbar(mesh, ax=ax, label="log10 " + _objective_unit(data.get("objective")).removeprefix("objective "))
     if colorbar.solids is not None:
         colorbar.solids.set_rasterized(True)
-    infeasible = matplotlib.patches.PathPatch(
+    infeasible = mpl().patches.PathPatch(
         cells_path(xe, ye, ~feasible), facecolor="0.82", edgecolor="0.45", linewidth=0.0, hatch="///"
     )
     infeasible.set_label("infeasible (speed limit or diverged)")
@@ -1140,9 +1154,7 @@ def fig_landscape(data: dict[str, Any]) -> Figure:
         dls_b = marks.get("dls_objective_b")
         if dls_b and np.isfinite(dls_b) and np.nanmin(b) < dls_b < np.nanmax(np.where(feasible, b, np.nan)):
             ax.contour(x, y, np.where(feasible, b, np.nan).T, levels=[dls_b], colors="white", linestyles="--", linewidths=1.2)
-            handles.append(
-                matplotlib.lines.Line2D([], [], color="white", linestyle="--", label=f"B of the tuned DLS ({_fmt(dls_b)})")
-            )
+            handles.append(mpl().lines.Line2D([], [], color="white", linestyle="--", label=f"B of the tuned DLS ({_fmt(dls_b)})"))
         opt = marks.get("ga_optimum") or {}
         if xn in opt and yn in opt:
             handles += ax.plot(

@@ -8,15 +8,19 @@ SIGTERM if this process dies without that chance (``PR_SET_PDEATHSIG``)."""
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import importlib.util
 import logging
 import os
+import select
 import signal
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -26,6 +30,10 @@ from service.infra.logs import Say
 PR_SET_PDEATHSIG = 1
 logging.getLogger("httpx").setLevel(logging.WARNING)  # our /readyz polls are in the API's access log
 STOP_TIMEOUT_S = 30.0  # a worker finishes its generation, uvicorn its requests
+#: The environment variable naming the file descriptor the API writes its readiness to.
+READY_FD = "SPACEARM_READY_FD"
+#: The environment variable naming the file descriptor a child waits on before it starts.
+GATE_FD = "SPACEARM_START_GATE_FD"
 
 
 def local_url(host: str, port: int) -> str:
@@ -39,18 +47,119 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
         ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
-def start(args: list[str], env: dict[str, str]) -> subprocess.Popen[bytes]:
-    """``python -P -m service <args>`` in a process group of its own, sharing our stdout/stderr.
-    ``-P``: the installed package, not a source tree that happens to be the working directory (the
-    image's /app): numba keys its kernel cache by source path, so that would recompile them."""
+def start(args: list[str], env: dict[str, str], pass_fds: tuple[int, ...] = ()) -> subprocess.Popen[bytes]:
+    """``python -P -m service <args>`` in a process group of its own, sharing our stdout/stderr
+    (and the file descriptors ``pass_fds``). ``-P``: the installed package, not a source tree
+    that happens to be the working directory (the image's /app): numba keys its kernel cache by
+    source path, so that would recompile them."""
     command = [sys.executable, "-P", "-m", "service", *args]
-    return subprocess.Popen(command, env=env, process_group=0, preexec_fn=_die_with_parent)
+    return subprocess.Popen(command, env=env, process_group=0, preexec_fn=_die_with_parent, pass_fds=pass_fds)
 
 
-def migrate_in_child(env: dict[str, str], *, verbose: bool = False) -> int:
-    """``spacearm migrate`` in a child process (sharing our stdout/stderr); its exit code."""
-    command = [sys.executable, "-P", "-m", "service", "migrate", *(["--verbose"] if verbose else [])]
-    return subprocess.run(command, env=env, check=False, preexec_fn=_die_with_parent).returncode
+def kernels_compiled() -> bool:
+    """Whether the engine's kernel cache is complete for this CPU, read by
+    :mod:`engine.kernels.cache` loaded from its file: the ``engine`` package (numpy, numba) is not
+    imported."""
+    spec = importlib.util.find_spec("engine")  # a top-level package: found, not imported
+    if spec is None or not spec.submodule_search_locations:
+        return False
+    path = Path(next(iter(spec.submodule_search_locations))) / "kernels" / "cache.py"
+    cache_spec = importlib.util.spec_from_file_location("spacearm_kernel_cache", path)
+    if cache_spec is None or cache_spec.loader is None:
+        return False
+    module = importlib.util.module_from_spec(cache_spec)
+    cache_spec.loader.exec_module(module)
+    return bool(module.compiled())
+
+
+def prepare_in_children(env: dict[str, str], stop: threading.Event, *, verbose: bool = False) -> int:
+    """``spacearm migrate`` and, unless the kernel cache is complete, ``spacearm compile`` in child
+    processes side by side (sharing our stdout/stderr): the database at head and the kernels in
+    their cache before the API and the workers go on, which then load the kernels in a second
+    instead of each compiling them. Returns 0, the exit code of the first that failed (the other
+    is stopped), or 130 if ``stop`` was set."""
+    base = [sys.executable, "-P", "-m", "service"]
+    # the API adds the presets when it starts (the migration alone need not import the engine)
+    commands = [[*base, "migrate", "--no-presets", *(["--verbose"] if verbose else [])]]
+    if not kernels_compiled():
+        commands.append([*base, "compile"])
+    children = [subprocess.Popen(command, env=env, preexec_fn=_die_with_parent) for command in commands]
+    try:
+        while not stop.is_set():
+            codes = [child.poll() for child in children]
+            failed = [code for code in codes if code]
+            if failed or all(code == 0 for code in codes):
+                return failed[0] if failed else 0
+            stop.wait(0.05)
+        return 130
+    finally:
+        for child in children:
+            if child.poll() is None:
+                child.terminate()
+            child.wait()
+
+
+def pass_gate() -> bool:
+    """In a child started by :func:`run`: wait (after the imports, which overlap the migration and
+    the compilation) until the launcher says go through the pipe named by :data:`GATE_FD`. False
+    if it said no or went away; True at once when there is no gate (``spacearm serve`` or
+    ``spacearm worker`` started by hand)."""
+    fd = os.environ.pop(GATE_FD, "")
+    if not fd.isdigit():
+        return True
+    received = b""
+    with contextlib.suppress(OSError):
+        while not received.endswith(b"\n"):
+            chunk = os.read(int(fd), 16)
+            if not chunk:
+                break
+            received += chunk
+        os.close(int(fd))
+    return received == b"go\n"
+
+
+def notify_ready(text: str) -> None:
+    """In the API started by :func:`run`: tell the launcher that the start-up ended (``ready``, or
+    why not), through the pipe named by :data:`READY_FD`; nothing when there is none."""
+    fd = os.environ.pop(READY_FD, "")
+    if fd.isdigit():
+        with contextlib.suppress(OSError):  # the launcher is gone: nobody to tell
+            os.write(int(fd), text.encode()[:512] + b"\n")
+            os.close(int(fd))
+
+
+def _interrupted(alive: Callable[[], str | None], stop: threading.Event) -> str | None:
+    """Why waiting for the API must end (a child died, or a stop was asked), or None."""
+    dead = alive()
+    if dead is not None:
+        return dead
+    return "stopped before the API was ready" if stop.is_set() else None
+
+
+def wait_signal(fd: int, alive: Callable[[], str | None], stop: threading.Event, timeout_s: float) -> str | None:
+    """Wait for :func:`notify_ready`'s line on ``fd``: None once it said ready, else why not (a
+    child that died, a stop request, the time limit, or the API's own reason)."""
+    deadline = time.monotonic() + timeout_s
+    received = b""
+    while True:
+        problem = _interrupted(alive, stop)
+        if problem is not None:
+            return problem
+        if time.monotonic() > deadline:
+            return f"the API was not ready within {timeout_s:g} s"
+        readable, _, _ = select.select([fd], [], [], 0.1)
+        if readable:
+            chunk = os.read(fd, 512)
+            received += chunk
+            if not chunk and not received:  # the API exited: say how, once the exit is seen
+                for _ in range(50):
+                    dead = alive()
+                    if dead is not None:
+                        return dead
+                    time.sleep(0.02)
+            if not chunk or received.endswith(b"\n"):
+                text = received.decode(errors="replace").strip()
+                return None if text == "ready" else f"the API did not start: {text or 'it closed the pipe'}"
 
 
 def wait_ready(url: str, alive: Callable[[], str | None], stop: threading.Event, timeout_s: float, say: Say) -> str | None:
@@ -63,11 +172,9 @@ def wait_ready(url: str, alive: Callable[[], str | None], stop: threading.Event,
     told = False
     with httpx.Client(timeout=5.0) as client:
         while True:
-            dead = alive()
-            if dead is not None:
-                return dead
-            if stop.is_set():
-                return "stopped before the API was ready"
+            problem = _interrupted(alive, stop)
+            if problem is not None:
+                return problem
             try:
                 response = client.get(url + "/readyz")
                 if response.status_code == 200:
@@ -78,15 +185,19 @@ def wait_ready(url: str, alive: Callable[[], str | None], stop: threading.Event,
             if time.monotonic() > deadline:
                 return f"the API was not ready within {timeout_s:g} s (last /readyz answer: {last})"
             if not told and time.monotonic() - start > 10.0:
-                say("spacearm run: waiting for the API (a first run compiles the kernels: about a minute)", False)
+                say(f"spacearm run: waiting for /readyz (it answers {last})", False)
                 told = True
             stop.wait(interval)
             interval = min(1.0, 1.5 * interval)
 
 
-def run(host: str, port: int, workers: int, ready_timeout_s: float, env: dict[str, str], say: Say) -> int:
-    """Start the API on ``host:port`` and ``workers`` workers; say the URL once ready; return
-    when stopped (0) or when a child exits on its own (1)."""
+def run(
+    host: str, port: int, workers: int, ready_timeout_s: float, env: dict[str, str], say: Say, *, verbose: bool = False
+) -> int:
+    """Migrate and compile (:func:`prepare_in_children`) while the API on ``host:port`` and
+    ``workers`` workers import their code, then let them start; say the URL once ready; return
+    when stopped (0), when a child exits on its own (1), or with the exit code of a failed
+    migration or compilation."""
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: Any) -> None:
@@ -94,10 +205,33 @@ def run(host: str, port: int, workers: int, ready_timeout_s: float, env: dict[st
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     children: dict[str, subprocess.Popen[bytes]] = {}
+    gates: list[int] = []
+    fds: list[int] = []
     try:
-        children["API"] = start(["serve", "--host", host, "--port", str(port)], env)
-        for i in range(workers):
-            children[f"worker {i + 1}" if workers > 1 else "worker"] = start(["worker"], env)
+        read_fd, ready_fd = os.pipe()
+        fds += [read_fd, ready_fd]
+        names = ["API"] + [f"worker {i + 1}" if workers > 1 else "worker" for i in range(workers)]
+        for name in names:
+            gate_read, gate_write = os.pipe()
+            fds += [gate_read, gate_write]
+            gates.append(gate_write)
+            child_env = {**env, GATE_FD: str(gate_read)}
+            passed: tuple[int, ...] = (gate_read,)
+            if name == "API":
+                child_env[READY_FD] = str(ready_fd)
+                passed = (gate_read, ready_fd)
+            args = ["serve", "--host", host, "--port", str(port)] if name == "API" else ["worker"]
+            children[name] = start(args, child_env, passed)
+        for fd in fds[1:]:  # the children's ends, and the gates' read ends
+            if fd not in gates:
+                os.close(fd)
+        fds = [read_fd, *gates]
+
+        code = prepare_in_children(env, stop, verbose=verbose)
+        if code:
+            return 0 if stop.is_set() else code
+        for gate in gates:
+            os.write(gate, b"go\n")
 
         def exited() -> str | None:
             for name, child in children.items():
@@ -106,7 +240,12 @@ def run(host: str, port: int, workers: int, ready_timeout_s: float, env: dict[st
             return None
 
         url = local_url(host, port)
-        problem = wait_ready(url, exited, stop, ready_timeout_s, say)
+        # The API says when its start-up (kernels, rehearsal) ended; then /readyz, which also
+        # checks the database, confirms (polled only if it does not answer 200 at once).
+        deadline = time.monotonic() + ready_timeout_s
+        problem = wait_signal(read_fd, exited, stop, ready_timeout_s)
+        if problem is None:
+            problem = wait_ready(url, exited, stop, max(1.0, deadline - time.monotonic()), say)
         if problem is not None:
             if stop.is_set():
                 return 0
@@ -121,6 +260,9 @@ def run(host: str, port: int, workers: int, ready_timeout_s: float, env: dict[st
                 return 1
         return 0
     finally:
+        for fd in fds:
+            with contextlib.suppress(OSError):
+                os.close(fd)  # a gate closed unopened: its child exits
         _stop_all(children)
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -173,9 +173,10 @@ def solve_many(method, params, J, xdot, qd, damping, sv):
     """Cold-started SVD and :func:`apply_inverse` for each member: ``params (B, P)``,
     ``J (B, p, n)``, ``xdot (B, p)``; writes ``qd (B, n)``, ``damping (B, m)``, ``sv (B, m)``."""
     n = J.shape[2]
+    refresh = n < 0  # False as a runtime bool: a literal False would compile another jacobi_svd
     for b in range(J.shape[0]):
         buf = svd_buffers(n, J.shape[1])
-        ok, _ = jacobi_svd(J[b], buf, False)
+        ok, _ = jacobi_svd(J[b], buf, refresh)
         if ok:
             apply_inverse(method, params[b], J[b], buf[1], buf[2], buf[3], xdot[b], qd[b], damping[b], np.empty((2, 6)))
         else:

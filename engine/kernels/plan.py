@@ -893,6 +893,9 @@ def evaluate_range(
     n = q0.shape[0]
     trace = empty_trace(n, rows)
     dyn = trajectory_buffers(twists.shape[0] if dynamics else 0, n, 1 if dynamics else 0)
+    # A literal False would compile a second specialisation of simulate (numba types a constant
+    # argument as Literal[bool]): a runtime bool shares the plan's.
+    record = trace[0].shape[0] > 0
     for b in range(start, stop):
         simulate(
             ch,
@@ -913,7 +916,7 @@ def evaluate_range(
             dynamics,
             geo,
             given,
-            False,
+            record,
             trace,
             dyn,
             out[b],

@@ -267,9 +267,10 @@ def svd_many(J, U, s, V):
     """Cold-started :func:`jacobi_svd` of each ``J[b] (p, n)``; ``U (B, p, m)``, ``s (B, m)``,
     ``V (B, n, m)``."""
     n = J.shape[2]
+    refresh = n < 0  # False as a runtime bool: a literal False would compile another jacobi_svd
     for b in range(J.shape[0]):
         buf = svd_buffers(n, J.shape[1])
-        jacobi_svd(J[b], buf, False)
+        jacobi_svd(J[b], buf, refresh)
         U[b] = buf[1]
         s[b] = buf[2]
         V[b] = buf[3]

@@ -11,6 +11,7 @@ import queue
 import re
 import signal
 import socket
+import sqlite3
 import subprocess
 import sys
 import threading
@@ -47,7 +48,7 @@ def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentP
 def test_every_option_has_help_with_its_default() -> None:
     parser = build_parser()
     commands = _subparsers(parser)
-    assert set(commands) == {"migrate", "serve", "worker", "run", "plan"}
+    assert set(commands) == {"migrate", "compile", "serve", "worker", "run", "plan"}
     for name, sub in commands.items():
         for action in sub._actions:
             if isinstance(action, argparse._HelpAction):
@@ -181,6 +182,12 @@ def test_run_prints_the_url_once_ready_and_ctrl_c_stops_everything(tmp_path: Pat
     assert kernels and kernels[0] < len(run.seen) - 1, "\n".join(run.seen)
     # ... after the database was migrated, and the API answers at once.
     assert any("at head" in line for line in run.seen[: kernels[0]])
+    # The API's start-up is signalled through a pipe: one /readyz (the launcher's check) and no 503s
+    readyz = [line for line in run.seen if '"GET /readyz' in line]
+    assert len(readyz) == 1 and " 200" in readyz[0], "\n".join(run.seen)
+    # The API binds (uvicorn prints its address) only after the migration: its imports overlap it
+    uvicorn_url = next(i for i, line in enumerate(run.seen) if "Uvicorn running on" in line)
+    assert any("at head" in line for line in run.seen[:uvicorn_url])
     assert httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=5).status_code == 200
     assert httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=5).status_code == 200
     assert not any("alembic" in line.lower() for line in run.seen)  # Alembic stays quiet
@@ -227,3 +234,35 @@ def test_run_says_why_when_the_api_dies_before_it_is_ready(tmp_path: Path, runs:
     assert ("spacearm.worker", "INFO", "signal 15: stopping after the current generation") in messages  # stopped too
     # migrated by a child `spacearm migrate`: the launcher imports neither the database nor the engine
     assert ("spacearm.migrate", "INFO", f"database sqlite:///{tmp_path / 'spacearm.db'} at head") in messages
+
+
+def test_run_stops_the_api_and_the_worker_when_the_migration_fails(tmp_path: Path, runs: list[Run]) -> None:
+    """The API and the worker wait at their gate while the database is migrated: a migration that
+    refuses (here: a database holding another application's table) ends the run with its exit
+    code, and neither child ever binds the port or claims a job."""
+    port = free_port()
+    with sqlite3.connect(tmp_path / "spacearm.db") as foreign:
+        foreign.execute("create table invoices (id integer primary key)")
+    run = Run(tmp_path, port)
+    runs.append(run)
+    assert run.until("spacearm API on") is None
+    assert run.popen.wait(60) != 0
+    output = run.rest()
+    assert "spacearm migrate: the database has tables that are not spacearm's (invoices)" in output, output
+    assert "Uvicorn running" not in output and "polling" not in output, output
+    assert not _port_open(port)
+
+
+def test_compile_says_when_the_kernels_are_compiled_and_reports_progress() -> None:
+    """``spacearm compile`` (what ``make test``, ``spacearm run`` and the Docker image run): the
+    suite's kernels were compiled before it started, so it has nothing to do; ``--force`` runs
+    every part in its own process (loading from the cache here) and says how far it is."""
+    done = spacearm("compile")
+    assert done.returncode == 0, done.stderr
+    assert "engine kernels: compiled already for this CPU" in done.stdout
+    forced = spacearm("compile", "--force", "--log-format", "json")
+    assert forced.returncode == 0, forced.stderr
+    messages = [json.loads(line)["message"] for line in forced.stderr.splitlines()]  # log records: stderr
+    assert messages[0].startswith("compiling the engine's kernels for this CPU into"), messages
+    assert "compiling kernels: 2 of 2 parts done after" in messages[-2], messages
+    assert re.fullmatch(r"engine kernels compiled in \d+ s", messages[-1]), messages
