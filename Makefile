@@ -48,9 +48,11 @@ test: $(STAMP)
 docs: $(STAMP)
 	$(BIN)/mkdocs build --strict
 
+# The engine's rows against the anchors, then every goal of issue 21 met or missed in one run
+# (start-up, requests, admission, the compiled anchor's kernel goals, memory).
 bench: $(STAMP)
 	$(BIN)/python bench/bench_engine.py
-	$(BIN)/python bench/bench_anchor.py
+	$(BIN)/python bench/bench_goals.py
 
 # The 3D view's three.js bundle (service/static/three-<version>.min.js), rebuilt from the versions
 # pinned by web/package-lock.json (needs Node.js and npm; the test suite checks it with --check).

@@ -28,12 +28,13 @@ from typing import IO
 
 import numpy as np
 
+from engine.executed import executed_motion, executed_trajectory
 from engine.inverses import make_inverse, method_names
 from engine.jacobian import generalized_jacobian
 from engine.kernels import replay as replay_kernels
 from engine.kernels.cache import marker_path
-from engine.kernels.jit import CACHE_DIR
-from engine.kinematics import State, forward_kinematics
+from engine.kernels.jit import CACHE_DIR, park_linking_modules
+from engine.kinematics import State, forward_kinematics, kinematics_batch
 from engine.model import RobotModel, table1_robot
 from engine.planner import plan, plan_batch
 from engine.replay import replay
@@ -68,8 +69,9 @@ def _planner(robot: RobotModel) -> None:
 
 def _tools(robot: RobotModel) -> None:
     """Everything but the step loop: the replay's integrators (on a still motion of three
-    samples, the argument types of :func:`engine.replay.replay`), every inverse on one GJM, and the
-    SO(3) helpers."""
+    samples, the argument types of :func:`engine.replay.replay`) and the executed trajectory's
+    spline and integration, the figures' kinematics, every inverse on one GJM, and the SO(3)
+    helpers."""
     t = np.array([0.0, 0.25, 0.5])
     q = np.repeat(Q0[None], 3, axis=0)
     qd = np.zeros_like(q)
@@ -78,6 +80,8 @@ def _tools(robot: RobotModel) -> None:
     replay_kernels.integrate(robot.chain, t, q, qd, ys, 1e-9, 1e-12)
     samples = (np.empty((3, 3)), np.empty((3, 3, 3)), np.empty((3, 3, 3)), np.empty(3), np.empty(3), np.empty((3, 3)))
     replay_kernels.evaluate_samples(robot.chain, q, qd, ys, *samples)
+    executed_motion(robot, executed_trajectory(t, q), np.zeros(3), np.eye(3))  # a plan response's executed trajectory
+    kinematics_batch(robot, q, np.repeat(np.eye(3)[None], 3, axis=0), np.zeros((3, 3)))  # the figures' arm
     J_g = generalized_jacobian(robot, State(Q0)).J_g
     for name in method_names():
         make_inverse(name).solve(J_g, np.ones(6))
@@ -94,7 +98,8 @@ PARTS: dict[str, Callable[[RobotModel], None]] = {"planner": _planner, "tools": 
 def warm_up(parts: Sequence[str] = tuple(PARTS)) -> float:
     """Run every kernel of ``parts`` (default: all) once on a two-step task of the Table-1 robot
     (every inverse method, plans with and without traces, the replay, the GJM and the SO(3)
-    helpers). Returns the seconds it took."""
+    helpers), then park the loaded kernels' linking modules
+    (:func:`engine.kernels.jit.park_linking_modules`). Returns the seconds it took."""
     unknown = set(parts) - set(PARTS)
     if unknown:
         raise ValueError(f"unknown kernel part(s) {sorted(unknown)}; the parts are {list(PARTS)}")
@@ -105,6 +110,7 @@ def warm_up(parts: Sequence[str] = tuple(PARTS)) -> float:
     if set(parts) == set(PARTS):
         # the replay as the API runs it, from a real plan (its arguments' types as callers pass them)
         replay(robot, plan(robot, _task(robot), make_inverse("adaptive")))
+    park_linking_modules()
     return time.perf_counter() - start
 
 

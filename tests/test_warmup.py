@@ -46,3 +46,27 @@ def test_unknown_parts_are_refused() -> None:
     assert set(PARTS) == {"planner", "tools"}
     with pytest.raises(ValueError, match="unknown kernel part"):
         warm_up(["planner", "gpu"])
+
+
+def test_a_parked_kernel_links_again_into_a_new_compilation() -> None:
+    """After the warm-up the loaded kernels' linking modules are parked as bitcode (about 40 MiB
+    of a service process); a compilation that calls one of them parses it again and works."""
+    import numba
+    import numpy as np
+
+    from engine.kernels import svd
+
+    warm_up()
+    library = next(iter(svd.svd_many.overloads.values())).library
+    assert library._shared_module is None  # parked
+
+    @numba.njit
+    def singular_values(J: np.ndarray) -> np.ndarray:
+        U, s, V = np.empty((1, 6, 6)), np.empty((1, 6)), np.empty((1, 6, 6))
+        svd.svd_many(J, U, s, V)
+        return s
+
+    J = np.random.default_rng(3).normal(size=(1, 6, 6))
+    expected = np.linalg.svd(J[0], compute_uv=False)
+    np.testing.assert_allclose(singular_values(J)[0], expected, rtol=1e-12)
+    assert library._shared_module is not None  # parsed again for the link
