@@ -14,13 +14,15 @@ from pathlib import Path
 
 from alembic import command
 from alembic.config import Config
-from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import Engine, func, inspect, select, table, text
+from sqlalchemy import func, inspect, select, table, text
 
 import migrations
 from service.infra.db import ensure_sqlite_dir, make_engine
+from service.infra.revision import current_revision
 from service.models import Base
+
+__all__ = ["MigrationError", "current_revision", "downgrade", "head_revision", "upgrade"]
 
 log = logging.getLogger("spacearm.migrate")
 
@@ -83,8 +85,3 @@ def downgrade(url: str, revision: str = "base") -> None:
 
 def head_revision(url: str) -> str | None:
     return ScriptDirectory.from_config(alembic_config(url)).get_current_head()
-
-
-def current_revision(engine: Engine) -> str | None:
-    with engine.connect() as conn:
-        return MigrationContext.configure(conn).get_current_revision()
