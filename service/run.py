@@ -32,6 +32,9 @@ logging.getLogger("httpx").setLevel(logging.WARNING)  # our /readyz polls are in
 STOP_TIMEOUT_S = 30.0  # a worker finishes its generation, uvicorn its requests
 #: The environment variable naming the file descriptor the API writes its readiness to.
 READY_FD = "SPACEARM_READY_FD"
+#: How much lower the workers' CPU priority is than the API's (``nice``): on a shared machine a GA
+#: generation yields to requests and ``/healthz``, and at start-up the API's imports go first.
+WORKER_NICENESS = 5
 #: The environment variable naming the file descriptor a child waits on before it starts.
 GATE_FD = "SPACEARM_START_GATE_FD"
 
@@ -47,13 +50,19 @@ def _die_with_parent() -> None:  # pragma: no cover - runs in the child between 
         ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
-def start(args: list[str], env: dict[str, str], pass_fds: tuple[int, ...] = ()) -> subprocess.Popen[bytes]:
+def _worker_child() -> None:  # pragma: no cover - runs in the child between fork and exec
+    _die_with_parent()
+    os.nice(WORKER_NICENESS)
+
+
+def start(args: list[str], env: dict[str, str], pass_fds: tuple[int, ...] = (), *, nice: bool = False) -> subprocess.Popen[bytes]:
     """``python -P -m service <args>`` in a process group of its own, sharing our stdout/stderr
     (and the file descriptors ``pass_fds``). ``-P``: the installed package, not a source tree
     that happens to be the working directory (the image's /app): numba keys its kernel cache by
     source path, so that would recompile them."""
     command = [sys.executable, "-P", "-m", "service", *args]
-    return subprocess.Popen(command, env=env, process_group=0, preexec_fn=_die_with_parent, pass_fds=pass_fds)
+    setup = _worker_child if nice else _die_with_parent
+    return subprocess.Popen(command, env=env, process_group=0, preexec_fn=setup, pass_fds=pass_fds)
 
 
 def kernels_compiled() -> bool:
@@ -221,7 +230,7 @@ def run(
                 child_env[READY_FD] = str(ready_fd)
                 passed = (gate_read, ready_fd)
             args = ["serve", "--host", host, "--port", str(port)] if name == "API" else ["worker"]
-            children[name] = start(args, child_env, passed)
+            children[name] = start(args, child_env, passed, nice=name != "API")
         for fd in fds[1:]:  # the children's ends, and the gates' read ends
             if fd not in gates:
                 os.close(fd)

@@ -204,6 +204,18 @@ def test_run_prints_the_url_once_ready_and_ctrl_c_stops_everything(tmp_path: Pat
     )
     print(f"\nspacearm run launcher: {rss_mib:.0f} MiB")
     assert rss_mib <= 60.0
+    # The worker runs at a lower CPU priority than the API (a GA generation yields to requests)
+    niceness = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+                command = (entry / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if int(fields[1]) == run.popen.pid:
+                niceness[b"worker" if b"worker" in command else b"serve" if b"serve" in command else b"?"] = int(fields[16])
+    assert niceness[b"worker"] == niceness[b"serve"] + 5, niceness
 
     run.popen.send_signal(signal.SIGINT)
     assert run.popen.wait(60) == 0
