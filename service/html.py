@@ -1,16 +1,18 @@
 """The Jinja2 environment of the server-rendered pages (templates in ``service/templates``) and
-its number filter."""
+its number filter, made on the first page rendered (Jinja2 is not imported by an API that
+renders none)."""
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from jinja2 import Environment, FileSystemLoader, select_autoescape
+if TYPE_CHECKING:
+    from jinja2 import Environment
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
-env = Environment(loader=FileSystemLoader(TEMPLATES), autoescape=select_autoescape(["html"]))
 
 
 def fmt(value: Any, scale: float | None = 1.0) -> str:
@@ -24,4 +26,11 @@ def fmt(value: Any, scale: float | None = 1.0) -> str:
     return str(value)
 
 
-env.filters["fmt"] = fmt
+@functools.cache
+def env() -> Environment:
+    """The environment (made once)."""
+    from jinja2 import Environment, FileSystemLoader, select_autoescape
+
+    environment = Environment(loader=FileSystemLoader(TEMPLATES), autoescape=select_autoescape(["html"]))
+    environment.filters["fmt"] = fmt
+    return environment

@@ -34,8 +34,10 @@ def assets() -> StaticFiles:
 def _page(template: str, request: Request, inline_styles: bool = False) -> HTMLResponse:
     root = request.scope.get("root_path", "")
     app = request.app
-    html = env.get_template(template).render(
-        title=app.title, openapi_url=f"{root}{app.openapi_url}", assets=f"{root}{ASSETS_URL}", root=root
+    html = (
+        env()
+        .get_template(template)
+        .render(title=app.title, openapi_url=f"{root}{app.openapi_url}", assets=f"{root}{ASSETS_URL}", root=root)
     )
     return HTMLResponse(html, headers={"Content-Security-Policy": page_csp(inline_styles)})
 

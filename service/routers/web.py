@@ -48,7 +48,7 @@ FAVICON = Path(__file__).resolve().parents[1] / "static" / "favicon.ico"
 def page(name: str, status_code: int = 200, *, request: Request | None = None, **context: Any) -> HTMLResponse:
     """A rendered page; with ``request``, its forms get the CSRF token (and a cookie if needed)."""
     token, fresh = csrf_token(request) if request is not None else ("", False)
-    response = HTMLResponse(env.get_template(name).render(csrf_token=token, **context), status_code=status_code)
+    response = HTMLResponse(env().get_template(name).render(csrf_token=token, **context), status_code=status_code)
     if fresh:
         secure = request.app.state.settings.cookie_secure if request is not None else False
         response.set_cookie(CSRF_COOKIE, token, httponly=True, samesite="strict", secure=secure, path="/")
