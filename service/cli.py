@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
@@ -209,6 +210,19 @@ def compile_kernels(force: bool, say: Say) -> int:
     return 0
 
 
+def _stop_while_starting(logger: str) -> None:
+    """Until the worker installs its own handlers (which finish the current generation first): a
+    SIGTERM or Ctrl-C while it imports its code or waits at ``spacearm run``'s gate ends it at once,
+    saying so, instead of the silent default."""
+
+    def handle(signum: int, _frame: Any) -> None:
+        logging.getLogger(logger).info("signal %s: stopping after the current generation", signum)
+        raise SystemExit(0)
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, handle)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     settings = Settings()
@@ -237,6 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         serve(create_app(settings), settings, log_level, log_config)
         return 0
     if args.command == "worker":
+        _stop_while_starting("spacearm.worker")
         from service.run import pass_gate
         from service.worker import run_worker
 

@@ -345,8 +345,14 @@ def test_compare_page_and_robot_upload(driver: Any, stack: Stack, tmp_path: Path
     driver.get(f"{stack.url}/plans/compare?a={ids[0]}&b={ids[1]}")
     Select(driver.find_element(By.ID, "compare-figure")).select_by_value("joint-velocities")
     driver.find_element(By.ID, "compare-submit").click()
-    wait_until(driver, lambda d: d.execute_script(ALL_IMAGES_LOADED, "#compare-image"))
-    assert "figures/joint-velocities?ids=" in driver.find_element(By.ID, "compare-image").get_attribute("src")
+    # read in the page, not through an element found before the new page replaced it (stale)
+    wait_until(
+        driver,
+        lambda d: (
+            d.execute_script(ALL_IMAGES_LOADED, "#compare-image")
+            and "figures/joint-velocities?ids=" in d.execute_script("const i = document.querySelector('#compare-image'); return i ? i.src : ''")
+        ),
+    )
     screenshot(driver, "09-compare")
 
     urdf = tmp_path / "arm7.urdf"
