@@ -45,6 +45,7 @@ CHROMIUM_FLAGS = [
     "--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE 127.0.0.1",
 ]
 
+COMPARE_SRC = "const i = document.querySelector('#compare-image'); return i ? i.src : ''"
 ALL_IMAGES_LOADED = """
 const imgs = Array.from(document.querySelectorAll(arguments[0]));
 return imgs.length > 0 && imgs.every(i => i.complete && i.naturalWidth > 0);
@@ -350,7 +351,7 @@ def test_compare_page_and_robot_upload(driver: Any, stack: Stack, tmp_path: Path
         driver,
         lambda d: (
             d.execute_script(ALL_IMAGES_LOADED, "#compare-image")
-            and "figures/joint-velocities?ids=" in d.execute_script("const i = document.querySelector('#compare-image'); return i ? i.src : ''")
+            and "figures/joint-velocities?ids=" in d.execute_script(COMPARE_SRC)
         ),
     )
     screenshot(driver, "09-compare")
