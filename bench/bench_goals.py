@@ -31,11 +31,13 @@ from typing import Any
 
 import httpx
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' helpers
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_anchor
 import bench_http
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.service.conftest import ROOT, free_port
+
 PAPER = {
     "robot_id": "table1",
     "task": bench_http.PAPER_TASK_EXAMPLE,
@@ -43,14 +45,6 @@ PAPER = {
     "replay": False,
 }
 Goal = tuple[str, str, bool]
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def rss_mib(pid: int) -> float:
@@ -109,7 +103,7 @@ class Launch:
         self.proc.wait(60)
 
 
-def startup(directory: Path) -> tuple[list[Goal], dict[str, float]]:
+def startup(directory: Path) -> list[Goal]:
     cache = directory / "numba"
     cold = Launch(directory / "start.db", {"NUMBA_CACHE_DIR": str(cache)})
     try:
@@ -153,7 +147,7 @@ def startup(directory: Path) -> tuple[list[Goal], dict[str, float]]:
     for name in ("API", "worker"):
         value = max(memory[name], memory[f"{name} after 50 plans"])
         goals.append((f"{name} <= 250 MiB after warm-up (and after 50 plans)", f"{value:.1f} MiB", value <= 250.0))
-    return goals, memory
+    return goals
 
 
 #: /healthz polled from a process of its own (the client threads of a burst would otherwise make
@@ -242,8 +236,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         directory = Path(tmp)
         (directory / "long").mkdir()
-        start_goals, _ = startup(directory)
-        goals += start_goals
+        goals += startup(directory)
         goals += requests_and_admission(directory)
     kernels = bench_anchor.measure()
     anchor_us = float(kernels["anchor_us"])  # type: ignore[arg-type]

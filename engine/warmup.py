@@ -114,11 +114,6 @@ def warm_up(parts: Sequence[str] = tuple(PARTS)) -> float:
     return time.perf_counter() - start
 
 
-def compiled() -> bool:
-    """Whether :func:`compile_kernels` finished for this cache and CPU (the kernels then load)."""
-    return marker_path(CACHE_DIR).exists()
-
-
 @dataclass(frozen=True)
 class Progress:
     """What :func:`compile_kernels` reports: ``done`` parts of ``total``, the parts still running
@@ -134,28 +129,26 @@ class CompileError(RuntimeError):
     """A part failed to compile (the message has the child's last lines)."""
 
 
-def compile_kernels(
-    on_progress: Callable[[Progress], None] | None = None, *, every_s: float = 10.0, stop: Callable[[], bool] | None = None
-) -> float:
+def compile_kernels(on_progress: Callable[[Progress], None], *, every_s: float = 10.0) -> float:
     """Compile every part into the kernel cache, one child process per part at once, and write
-    the marker of :func:`engine.kernels.cache.marker_path`. ``on_progress`` is called when a part
-    ends and every ``every_s`` seconds meanwhile; ``stop()`` true ends the children and raises
-    :class:`CompileError`. Returns the seconds it took."""
+    the marker of :func:`engine.kernels.cache.marker_path` (:func:`engine.kernels.cache.compiled`
+    then says so). ``on_progress`` is called when a part ends and every ``every_s`` seconds
+    meanwhile. Returns the seconds it took."""
     start = time.monotonic()
     with contextlib.ExitStack() as files:
         # the children's output goes to files, not pipes: a child never blocks on a full pipe
         logs = {name: files.enter_context(tempfile.TemporaryFile("w+")) for name in PARTS}
-        children = {name: subprocess.Popen(_command(name), stdout=logs[name], stderr=subprocess.STDOUT) for name in PARTS}
-        running = dict(children)
+        running = {name: subprocess.Popen(_command(name), stdout=logs[name], stderr=subprocess.STDOUT) for name in PARTS}
         try:
-            _watch(running, logs, start, on_progress, every_s, stop)
+            _watch(running, logs, start, on_progress, every_s)
         finally:
             for child in running.values():
                 child.kill()
                 child.wait()
+    seconds = time.monotonic() - start
     CACHE_DIR.mkdir(parents=True, exist_ok=True)
-    marker_path(CACHE_DIR).write_text(f"compiled in {time.monotonic() - start:.1f} s\n")
-    return time.monotonic() - start
+    marker_path(CACHE_DIR).write_text(f"compiled in {seconds:.1f} s\n")
+    return seconds
 
 
 def _command(part: str) -> list[str]:
@@ -170,16 +163,18 @@ def _watch(
     running: dict[str, subprocess.Popen[bytes]],
     logs: Mapping[str, IO[str]],
     start: float,
-    on_progress: Callable[[Progress], None] | None,
+    on_progress: Callable[[Progress], None],
     every_s: float,
-    stop: Callable[[], bool] | None,
 ) -> None:
     """Wait for the ``running`` children (removing each as it ends), reporting progress."""
+
+    def report(now: float) -> float:
+        on_progress(Progress(len(PARTS) - len(running), len(PARTS), tuple(running), now - start))
+        return now
+
     last = start
     while running:
         time.sleep(0.1)
-        if stop is not None and stop():
-            raise CompileError("stopped before the kernels were compiled")
         for name, child in list(running.items()):
             if child.poll() is None:
                 continue
@@ -188,10 +183,6 @@ def _watch(
                 logs[name].seek(0)
                 tail = "\n".join(logs[name].read().strip().splitlines()[-5:])
                 raise CompileError(f"compiling the {name} kernels failed (exit code {child.returncode}): {tail}")
-            last = time.monotonic()
-            if on_progress is not None:
-                on_progress(Progress(len(PARTS) - len(running), len(PARTS), tuple(running), last - start))
-        now = time.monotonic()
-        if running and on_progress is not None and now - last >= every_s:
-            last = now
-            on_progress(Progress(len(PARTS) - len(running), len(PARTS), tuple(running), now - start))
+            last = report(time.monotonic())
+        if running and time.monotonic() - last >= every_s:
+            last = report(time.monotonic())

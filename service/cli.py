@@ -183,10 +183,11 @@ def migrate(settings: Settings, revision: str, say: Say, presets: bool = True) -
     return 0
 
 
-def compile_kernels(force: bool, say: Say) -> int:
+def compile_command(force: bool, say: Say) -> int:
     """``spacearm compile``: fill the kernel cache unless it is complete for this CPU."""
+    from engine.kernels.cache import compiled
     from engine.kernels.jit import CACHE_DIR
-    from engine.warmup import PARTS, CompileError, Progress, compile_kernels, compiled
+    from engine.warmup import PARTS, CompileError, Progress, compile_kernels
 
     if compiled() and not force:
         say(f"engine kernels: compiled already for this CPU (cache {CACHE_DIR})", False)
@@ -234,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "migrate":
         return migrate(settings, args.revision, say, presets=not args.no_presets)
     if args.command == "compile":
-        return compile_kernels(args.force, say)
+        return compile_command(args.force, say)
     if args.command == "serve":
         from service.app import create_app
         from service.infra.server import serve
