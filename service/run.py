@@ -212,29 +212,24 @@ def run(
     def on_signal(signum: int, _frame: Any) -> None:
         stop.set()
 
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    read_fd, ready_fd = os.pipe()  # the API's readiness
+    child_ends = [ready_fd]  # closed here once the children hold them
+    gates: list[int] = []  # our ends of the children's gates
     children: dict[str, subprocess.Popen[bytes]] = {}
-    gates: list[int] = []
-    fds: list[int] = []
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        read_fd, ready_fd = os.pipe()
-        fds += [read_fd, ready_fd]
         names = ["API"] + [f"worker {i + 1}" if workers > 1 else "worker" for i in range(workers)]
         for name in names:
             gate_read, gate_write = os.pipe()
-            fds += [gate_read, gate_write]
             gates.append(gate_write)
-            child_env = {**env, GATE_FD: str(gate_read)}
-            passed: tuple[int, ...] = (gate_read,)
+            child_ends.append(gate_read)
             if name == "API":
-                child_env[READY_FD] = str(ready_fd)
-                passed = (gate_read, ready_fd)
-            args = ["serve", "--host", host, "--port", str(port)] if name == "API" else ["worker"]
-            children[name] = start(args, child_env, passed, nice=name != "API")
-        for fd in fds[1:]:  # the children's ends, and the gates' read ends
-            if fd not in gates:
-                os.close(fd)
-        fds = [read_fd, *gates]
+                api_env = {**env, GATE_FD: str(gate_read), READY_FD: str(ready_fd)}
+                api_args = ["serve", "--host", host, "--port", str(port)]
+                children[name] = start(api_args, api_env, (gate_read, ready_fd))
+            else:
+                children[name] = start(["worker"], {**env, GATE_FD: str(gate_read)}, (gate_read,), nice=True)
+        _close(child_ends)
 
         code = prepare_in_children(env, stop, verbose=verbose)
         if code:
@@ -269,12 +264,19 @@ def run(
                 return 1
         return 0
     finally:
-        for fd in fds:
-            with contextlib.suppress(OSError):
-                os.close(fd)  # a gate closed unopened: its child exits
+        _close(child_ends)
+        _close(gates)  # a gate closed unopened: its child exits
+        _close([read_fd])
         _stop_all(children)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _close(fds: list[int]) -> None:
+    """Close each of ``fds`` and empty the list (so that a second call closes nothing)."""
+    while fds:
+        with contextlib.suppress(OSError):
+            os.close(fds.pop())
 
 
 def _stop_all(children: dict[str, subprocess.Popen[bytes]]) -> None:
