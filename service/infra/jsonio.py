@@ -61,9 +61,18 @@ def dumps_large(value: Any) -> bytes:
     whole call (60 ms for a 17 MiB plan), so a body made in one call, or eight made at once by
     worker threads taking turns with the GIL, stall the event loop for hundreds of milliseconds;
     made in pieces by one thread, the event loop waits for a piece at most. Encoding holds the GIL
-    anyway, so one at a time costs no throughput."""
+    anyway, so one at a time costs no throughput. A value without a large array is one call (a
+    paper plan: 0.05 ms instead of 0.35 ms in 200 pieces)."""
+    if not _has_large(value):
+        return dumps(value)
     with _ONE_LARGE_BODY_AT_A_TIME:
         return b"".join(_pieces(value))
+
+
+def _has_large(value: Any) -> bool:
+    if isinstance(value, dict):
+        return any(_has_large(item) for item in value.values())
+    return isinstance(value, np.ndarray) and value.ndim > 0 and len(value) > ROWS_PER_PIECE
 
 
 def _pieces(value: Any) -> Iterator[bytes]:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import threading
-from collections import OrderedDict
 from datetime import datetime
 from typing import Annotated, Any
 
@@ -20,6 +18,7 @@ from engine.spatial import FloatArray, matrix_to_quaternion, quaternion_to_matri
 from engine.trajectory import PAPER_Q0_DEG
 from engine.urdf import MAX_URDF_BYTES, UrdfError, urdf_element, urdf_to_dict
 from service.infra import jsonio
+from service.infra.lru import Lru
 from service.schemas.common import (
     DET_UNITS,
     MAX_JOINTS,
@@ -112,9 +111,8 @@ class EndEffectorParams(Input):
     C_e: Rotation = Field(description="end-effector frame in the last link's frame (rotation matrix)")
 
 
-_MODELS: OrderedDict[bytes, RobotModel] = OrderedDict()
-_MODELS_LOCK = threading.Lock()
 MODEL_CACHE_SIZE = 64
+_MODELS: Lru[bytes, RobotModel] = Lru(MODEL_CACHE_SIZE)
 
 
 def model_of(parameters: dict[str, Any]) -> RobotModel:
@@ -124,23 +122,16 @@ def model_of(parameters: dict[str, Any]) -> RobotModel:
     definite, physical inertias, non-zero axes, ...). The first problem is a ``ParameterError``
     naming the parameter (``links[2].inertia``). Models are immutable, so the last few are kept
     (keyed by their parameters), which spares stored robots the validation on every request."""
-    key = jsonio.dumps_sorted(parameters)
-    with _MODELS_LOCK:
-        cached = _MODELS.get(key)
-        if cached is not None:
-            _MODELS.move_to_end(key)
-            return cached
-    try:
-        checked = RobotParams.model_validate(parameters, strict=False).model_dump(exclude_none=True)
-    except ValidationError as exc:
-        error = exc.errors()[0]
-        raise ParameterError(dotted_path(error["loc"]) or "robot", error["msg"]) from None
-    model = RobotModel.from_dict(checked)
-    with _MODELS_LOCK:
-        _MODELS[key] = model
-        while len(_MODELS) > MODEL_CACHE_SIZE:
-            _MODELS.popitem(last=False)
-    return model
+
+    def build() -> RobotModel:
+        try:
+            checked = RobotParams.model_validate(parameters, strict=False).model_dump(exclude_none=True)
+        except ValidationError as exc:
+            error = exc.errors()[0]
+            raise ParameterError(dotted_path(error["loc"]) or "robot", error["msg"]) from None
+        return RobotModel.from_dict(checked)
+
+    return _MODELS.get(jsonio.dumps_sorted(parameters), build)
 
 
 class RobotParams(Input):

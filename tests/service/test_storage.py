@@ -1,15 +1,18 @@
 """The stored form of trajectories and grids: every float64 bit, shape and name back, rows stored
-as ``.npz`` by earlier versions still read, and no larger than numpy's compressed ``.npz``."""
+as ``.npz`` or in the first form (no byte planes) by earlier versions still read, and smaller than
+both."""
 
 from __future__ import annotations
 
 import io
+import json
+import zlib
 
 import numpy as np
 
 from engine import make_inverse, paper_task, run_plan, table1_robot
 from engine.planner import PlanSetup
-from service.infra.storage import MAGIC, pack_trajectory, unpack_trajectory
+from service.infra.storage import MAGIC, MAGIC_1, pack_trajectory, unpack_trajectory
 from service.usecases.plans import record_of
 
 
@@ -47,3 +50,27 @@ def test_rows_stored_as_npz_are_still_read_and_the_new_form_is_no_larger() -> No
     assert all(np.array_equal(unpack_trajectory(new)[k], record[k], equal_nan=True) for k in record)
     print(f"\npaper plan record: {len(new)} bytes stored, {len(buffer.getvalue())} as .npz")
     assert len(new) <= 1.1 * len(buffer.getvalue())
+
+
+def first_form(arrays: dict[str, np.ndarray]) -> bytes:
+    """``arrays`` as ``spacearm-arrays-1`` stored them: the values end to end, compressed as they are."""
+    header, offset = {}, 0
+    for name, array in arrays.items():
+        header[name] = [list(array.shape), offset]
+        offset += array.nbytes
+    head = json.dumps(header).encode()
+    payload = b"".join(np.ascontiguousarray(a, dtype="<f8").tobytes() for a in arrays.values())
+    return MAGIC_1 + len(head).to_bytes(4, "little") + head + zlib.compress(payload, 1)
+
+
+def test_rows_of_the_first_form_are_still_read_and_the_byte_planes_compress_better() -> None:
+    model = table1_robot()
+    result = run_plan(PlanSetup(model, paper_task(model)), make_inverse("adaptive", lambda_max=0.06, epsilon=0.12))
+    record = {k: np.asarray(v, dtype=float) for k, v in record_of(result, model).items()}
+    old = first_form(record)
+    back = unpack_trajectory(old)
+    assert list(back) == list(record)
+    assert all(back[k].tobytes() == record[k].tobytes() for k in record)
+    new = pack_trajectory(record)
+    print(f"\npaper plan record: {len(new)} bytes with byte planes, {len(old)} without")
+    assert len(new) < 0.97 * len(old)
