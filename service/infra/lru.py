@@ -31,6 +31,19 @@ class Lru(Generic[K, V]):
         self.put(key, value)
         return value
 
+    def peek(self, key: K) -> V | None:
+        """The value kept for ``key``, or None (nothing built)."""
+        with self._lock:
+            value = self._values.get(key)
+            if value is not None:
+                self._values.move_to_end(key)
+            return value
+
+    def discard(self, key: K) -> None:
+        """Forget ``key``'s value, if kept."""
+        with self._lock:
+            self._values.pop(key, None)
+
     def put(self, key: K, value: V) -> None:
         """Keep ``value`` for ``key`` (the most recent)."""
         with self._lock:

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 from sqlalchemy import ColumnElement, func, or_, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from engine import CartesianTask, DurationSearch, Inverse, PlanResult, PlanSetup, RobotModel, replay, run_plan, shortest_duration
@@ -36,7 +37,7 @@ from service.infra.metrics import count_plan
 from service.infra.quota import check_quota
 from service.infra.settings import Settings
 from service.infra.storage import pack_trajectory, unpack_trajectory
-from service.models import Plan
+from service.models import Plan, Robot
 from service.schemas.common import located
 from service.schemas.geometry import MeshIn
 from service.schemas.methods import MethodOut
@@ -216,13 +217,18 @@ TASK_CACHE_SIZE = 64
 _TASKS: Lru[tuple[int, str], tuple[RobotModel, CartesianTask]] = Lru(TASK_CACHE_SIZE)
 
 
+def among_meshes(task: TaskIn) -> bool:
+    """Whether ``task``'s obstacles name stored meshes (resolved in a database session)."""
+    return task.scene is not None and any(isinstance(obstacle, MeshIn) for obstacle in task.scene.obstacles)
+
+
 def engine_task(task: TaskIn, model: RobotModel) -> CartesianTask:
     """``task.to_engine(model)``, kept for the next request of the same task on the same model (a
     stored robot's model is kept too, :func:`service.schemas.robots.model_of`): building a task
     (its start pose, its path) cost a paper plan 0.2 ms of its request, and clients plan one task
     again and again with other methods and damping. Engine tasks are immutable. Tasks among
     stored meshes are built every time, as a mesh may have been deleted since."""
-    if task.scene is not None and any(isinstance(obstacle, MeshIn) for obstacle in task.scene.obstacles):
+    if among_meshes(task):
         return task.to_engine(model)
     key = (id(model), task.model_dump_json())
     kept_model, built = _TASKS.get(key, lambda: (model, task.to_engine(model)))
@@ -232,6 +238,14 @@ def engine_task(task: TaskIn, model: RobotModel) -> CartesianTask:
     return built
 
 
+def _kept_robot(body: PlanRequest) -> RobotModel | None:
+    """The model of the request's stored robot if this process read it before and the task names
+    no stored mesh (read in a session), else None."""
+    if body.robot is not None or body.robot_id is None or among_meshes(body.task):
+        return None
+    return robots.kept(body.robot_id)
+
+
 def prepare(db: Database | None, body: PlanRequest) -> Prepared:
     """Resolve the robot (without a database: a preset or the inline robot) and convert the
     request: 422s name the API field the engine refused."""
@@ -239,6 +253,10 @@ def prepare(db: Database | None, body: PlanRequest) -> Prepared:
         robot_id, model = robots.resolve_preset(body.robot_id, body.robot)
         with located(body.task, "body", "task"):
             task = body.task.to_engine(model)
+    elif (kept := _kept_robot(body)) is not None:  # no database session at all
+        robot_id, model = body.robot_id, kept
+        with located(body.task, "body", "task"):
+            task = engine_task(body.task, model)
     else:
         with db.session() as session, meshes.hulls(session):  # no connection held while planning
             robot_id, model = robots.resolve(session, body.robot_id, body.robot)
@@ -314,14 +332,25 @@ def compute_shortest(db: Database, settings: Settings, body: ShortestDurationReq
     return finish(body, prepared, found.plan, settings, started, request), DurationSearchOut.from_engine(found)
 
 
+def _robot_exists(db: Database, robot_id: str) -> bool:
+    with db.session() as session:
+        return session.scalar(select(Robot.id).where(Robot.id == robot_id)) is not None
+
+
 def store(db: Database, settings: Settings, planned: Planned) -> Plan:
     """Store a plan within the quota; committed before the response goes out (a client's next
-    request must see it)."""
+    request must see it). A plan of a stored robot deleted since it was read is a 404."""
     row = planned.row
-    with db.session() as session:
-        check_quota(session, settings.storage_quota_bytes, len(row.trajectory_data))
-        session.add(row)
-        session.commit()
+    try:
+        with db.session() as session:
+            check_quota(session, settings.storage_quota_bytes, len(row.trajectory_data))
+            session.add(row)
+            session.commit()
+    except IntegrityError:
+        if row.robot_id is None or _robot_exists(db, row.robot_id):
+            raise
+        robots.forget(row.robot_id)  # deleted since the request read it (robots.kept)
+        raise NotFoundError("robot", row.robot_id) from None
     count_plan(row.method["name"], row.success, row.elapsed_s)
     return row
 

@@ -23,6 +23,7 @@ from engine.errors import ParameterError
 from service.errors import ApiError, ApiValidationError, ConflictError
 from service.infra import jsonio
 from service.infra.db import Database
+from service.infra.lru import Lru
 from service.infra.quota import check_quota
 from service.models import Robot, new_id, utcnow
 from service.schemas.common import located
@@ -70,6 +71,23 @@ def seed_presets(db: Database) -> None:
             pass
 
 
+#: Stored robots' models by id, read by plan requests (:func:`kept`). A stored robot never changes:
+#: robots are created and deleted, never updated, and ids are not reused. A robot deleted since
+#: (by another API process too) fails the plan's insert on the plans' foreign key, which
+#: :func:`service.usecases.plans.store` answers with this 404.
+_STORED: Lru[str, RobotModel] = Lru(256)
+
+
+def kept(robot_id: str) -> RobotModel | None:
+    """The model of stored robot ``robot_id`` as a request of this process last read it, or None."""
+    return _STORED.peek(robot_id)
+
+
+def forget(robot_id: str) -> None:
+    """Stop keeping stored robot ``robot_id`` (deleted)."""
+    _STORED.discard(robot_id)
+
+
 def load(session: Session, robot_id: str) -> Robot:
     return rows.load(session, Robot, robot_id, "robot")
 
@@ -86,7 +104,9 @@ def resolve(session: Session, robot_id: str | None, inline: RobotParams | None) 
             [{"loc": ["body", "robot_id"], "msg": "robot_id or robot is required"}],
         )
     try:
-        return robot_id, stored_model(load(session, robot_id))
+        model = stored_model(load(session, robot_id))
+        _STORED.put(robot_id, model)
+        return robot_id, model
     except UnusableRobotError as exc:
         raise ApiValidationError(exc.detail, [{"loc": ["body", "robot_id"], "msg": exc.detail}]) from None
 
@@ -152,6 +172,7 @@ def delete(db: Database, robot_id: str) -> None:
         session.delete(robot)
 
     db.freeing(lambda: db.write(remove))
+    forget(robot_id)
 
 
 def urdf(session: Session, robot_id: str) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import sqlite3
 import threading
 import time
 from collections.abc import Callable
@@ -56,6 +57,23 @@ def test_robots_crud(client: httpx.Client) -> None:
     _problem(client.delete(f"/v1/robots/{robot['id']}"), 404)
     _problem(client.delete("/v1/robots/table1"), 409)
     assert client.get("/v1/robots/table1").status_code == 200
+
+
+def test_a_plan_of_a_robot_deleted_elsewhere_is_a_404(client: httpx.Client, stack: Stack) -> None:
+    """The API keeps the stored robots its plans read (robots never change); one deleted by another
+    process since is still refused, by the plans' foreign key, with the same 404 as any missing robot."""
+    params = {**client.get("/v1/robots/table1").json()["parameters"], "name": "deleted-elsewhere"}
+    robot_id = client.post("/v1/robots", json=params).json()["id"]
+    body = {"robot_id": robot_id, "task": PAPER_TASK, "replay": False}
+    for _ in range(2):  # read, then kept
+        assert client.post("/v1/plans", params={"fields": ""}, json=body).status_code == 201
+    with sqlite3.connect(stack.db_path) as db:  # as another API process deletes it
+        db.execute("PRAGMA foreign_keys=ON")
+        db.execute("DELETE FROM robots WHERE id = ?", (robot_id,))
+    gone = _problem(client.post("/v1/plans", json=body), 404)
+    assert robot_id in gone["detail"]
+    assert client.get("/v1/plans", params={"robot_id": robot_id}).json()["total"] == 0  # SET NULL, none stored since
+    assert client.post("/v1/plans", params={"fields": ""}, json={**body, "robot_id": "table1"}).status_code == 201
 
 
 def test_robot_validation_names_the_field(client: httpx.Client) -> None:
