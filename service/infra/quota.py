@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+from urllib.parse import unquote
 
 from sqlalchemy import text
 from sqlalchemy.orm import Session
@@ -46,7 +47,9 @@ def files_bytes(session: Session) -> float:
     pages are in the file or, not yet checkpointed, in the log); infinite for other databases."""
     bind = session.get_bind()
     name = bind.engine.url.database if bind.dialect.name == "sqlite" else None
-    if not name or name == ":memory:" or name.startswith("file:"):
+    if name and name.startswith("file:"):  # a URI (service.infra.db opens existing files so)
+        name = unquote(name[len("file:") :].split("?", 1)[0])
+    if not name or name == ":memory:" or "mode=memory" in str(bind.engine.url):
         return math.inf
     try:
         return float(sum(os.stat(path).st_size for path in (name, name + "-wal") if os.path.exists(path)))

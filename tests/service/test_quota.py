@@ -11,6 +11,7 @@ import pytest
 from sqlalchemy import create_engine, event, text
 from sqlalchemy.orm import Session
 
+from service.infra.db import Database
 from service.infra.quota import QuotaExceededError, check_quota, database_bytes, files_bytes
 from tests.service.conftest import PAPER_TASK, Stack
 
@@ -39,9 +40,13 @@ def test_the_quota_counts_pages_in_use_only_near_the_quota(tmp_path: Path) -> No
         assert statements  # near it: the pages were counted
         session.execute(text("DELETE FROM blobs WHERE id <= 4"))
         session.commit()
-        assert files_bytes(session) >= used  # the files keep their size, the pages are free
+        sizes = sum(f.stat().st_size for f in (tmp_path / "q.db", tmp_path / "q.db-wal") if f.exists())
+        assert files_bytes(session) == sizes >= used  # the files keep their size, the pages are free
         check_quota(session, used + BLOB // 2, BLOB)  # deleted data frees room
     assert files_bytes(Session(create_engine("sqlite://"))) == float("inf")
+    with Database(f"sqlite:///{tmp_path / 'q.db'}").session() as session:  # the service's engine: a URI
+        sizes = sum(f.stat().st_size for f in (tmp_path / "q.db", tmp_path / "q.db-wal") if f.exists())
+        assert files_bytes(session) == sizes >= used
 
 
 def test_plans_fill_the_quota_then_507_until_plans_are_deleted(make_stack: Callable[..., Stack]) -> None:
