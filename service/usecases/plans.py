@@ -13,7 +13,9 @@ trajectory is neither copied into Python lists nor validated again on the way ou
 from __future__ import annotations
 
 import math
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -274,6 +276,10 @@ def prepare(db: Database | None, body: PlanRequest) -> Prepared:
     return Prepared(robot_id, model, setup, inverse, uncertainty)
 
 
+#: Threads for the executed trajectory's replay beside the planned one (:func:`finish`).
+_REPLAYS = ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1), thread_name_prefix="spacearm-replay")
+
+
 def finish(
     body: PlanRequest, prepared: Prepared, result: PlanResult, settings: Settings, started: float, request: dict[str, Any]
 ) -> Planned:
@@ -283,7 +289,9 @@ def finish(
     if skipped is not None:
         replayed = ReplayOut.skipped(skipped)
     elif body.replay:
-        replayed = ReplayOut.from_engine(replay(prepared.model, result), replay_executed(prepared.model, result))
+        # the two replays at once: their integrators release the GIL (a paper plan: 1.9 and 1.2 ms)
+        executed = _REPLAYS.submit(replay_executed, prepared.model, result)
+        replayed = ReplayOut.from_engine(replay(prepared.model, result), executed.result())
     record = record_of(result, prepared.model)
     robust: Robustness | None = None
     if prepared.uncertainty is not None:
