@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import threading
 import time
 from collections.abc import AsyncIterator
@@ -21,6 +22,7 @@ from service import errors, openapi
 from service.infra import observability, security
 from service.infra.admission import Admission
 from service.infra.db import Database
+from service.infra.metrics import process_exited
 from service.infra.ratelimit import AddressLimiter
 from service.infra.retention import Sweeper
 from service.infra.settings import Settings
@@ -185,6 +187,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             sweeper.stop()
         db.dispose()
         app.state.health_db.dispose()
+        process_exited(os.getpid())
 
     # /docs and /redoc are ours (service.routers.docs): offline assets, no inline script
     app = FastAPI(

@@ -46,6 +46,13 @@ def non_negative(text: str) -> int:
     return number
 
 
+def positive(text: str) -> int:
+    number = int(text)
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"{number} is not positive")
+    return number
+
+
 def build_parser() -> argparse.ArgumentParser:
     logs = argparse.ArgumentParser(add_help=False)
     group = logs.add_argument_group("logging")
@@ -129,6 +136,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     listen_options(r)
     r.add_argument("--workers", type=non_negative, default=1, help="worker processes to start (default: 1)")
+    r.add_argument(
+        "--api-processes",
+        type=positive,
+        default=None,
+        help="API processes behind the one port (default: SPACEARM_API_PROCESSES, else 1); more than one share the "
+        "port (SO_REUSEPORT) and their metrics (PROMETHEUS_MULTIPROC_DIR, a temporary folder unless set)",
+    )
     r.add_argument(
         "--ready-timeout",
         type=float,
@@ -279,6 +293,7 @@ def main(argv: list[str] | None = None) -> int:
             env,
             say,
             verbose=args.verbose,
+            api_processes=args.api_processes or settings.api_processes,
         )
     return 2
 

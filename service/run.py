@@ -14,9 +14,11 @@ import importlib.util
 import logging
 import os
 import select
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -35,6 +37,9 @@ READY_FD = "SPACEARM_READY_FD"
 #: How much lower the workers' CPU priority is than the API's (``nice``): on a shared machine a GA
 #: generation yields to requests and ``/healthz``, and at start-up the API's imports go first.
 WORKER_NICENESS = 5
+#: prometheus-client's multiprocess directory (:data:`service.infra.metrics.MULTIPROCESS_DIR`; not
+#: imported from there: the launcher imports no prometheus-client, SQLAlchemy or engine).
+MULTIPROCESS_DIR = "PROMETHEUS_MULTIPROC_DIR"
 #: The environment variable naming the file descriptor a child waits on before it starts.
 GATE_FD = "SPACEARM_START_GATE_FD"
 
@@ -201,30 +206,48 @@ def wait_ready(url: str, alive: Callable[[], str | None], stop: threading.Event,
 
 
 def run(
-    host: str, port: int, workers: int, ready_timeout_s: float, env: dict[str, str], say: Say, *, verbose: bool = False
+    host: str,
+    port: int,
+    workers: int,
+    ready_timeout_s: float,
+    env: dict[str, str],
+    say: Say,
+    *,
+    verbose: bool = False,
+    api_processes: int = 1,
 ) -> int:
-    """Migrate and compile (:func:`prepare_in_children`) while the API on ``host:port`` and
-    ``workers`` workers import their code, then let them start; say the URL once ready; return
-    when stopped (0), when a child exits on its own (1), or with the exit code of a failed
-    migration or compilation."""
+    """Migrate and compile (:func:`prepare_in_children`) while ``api_processes`` API processes
+    on ``host:port`` and ``workers`` workers import their code, then let them start; say the URL
+    once every API process is ready; return when stopped (0), when a child exits on its own (1),
+    or with the exit code of a failed migration or compilation. Several API processes share the
+    port (``SO_REUSEPORT``) and their metrics (:func:`shared_metrics_dir`)."""
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: Any) -> None:
         stop.set()
 
-    read_fd, ready_fd = os.pipe()  # the API's readiness
-    child_ends = [ready_fd]  # closed here once the children hold them
+    apis = ["API"] if api_processes == 1 else [f"API {i + 1}" for i in range(api_processes)]
+    ready = {name: os.pipe() for name in apis}  # each API's readiness
+    ours = [read for read, _ in ready.values()]  # our ends, closed at the end
+    child_ends = [write for _, write in ready.values()]  # closed here once the children hold them
     gates: list[int] = []  # our ends of the children's gates
     children: dict[str, subprocess.Popen[bytes]] = {}
+    metrics_dir = None
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        names = ["API"] + [f"worker {i + 1}" if workers > 1 else "worker" for i in range(workers)]
+        shared = {}  # the API processes' environment
+        if api_processes > 1:
+            metrics_dir, created = shared_metrics_dir(env)
+            shared = {MULTIPROCESS_DIR: metrics_dir, "SPACEARM_API_PROCESSES": str(api_processes)}
+            metrics_dir = metrics_dir if created else None
+        names = apis + [f"worker {i + 1}" if workers > 1 else "worker" for i in range(workers)]
         for name in names:
             gate_read, gate_write = os.pipe()
             gates.append(gate_write)
             child_ends.append(gate_read)
-            if name == "API":
-                api_env = {**env, GATE_FD: str(gate_read), READY_FD: str(ready_fd)}
+            if name in ready:
+                ready_fd = ready[name][1]
+                api_env = {**env, **shared, GATE_FD: str(gate_read), READY_FD: str(ready_fd)}
                 api_args = ["serve", "--host", host, "--port", str(port)]
                 children[name] = start(api_args, api_env, (gate_read, ready_fd))
             else:
@@ -244,10 +267,12 @@ def run(
             return None
 
         url = local_url(host, port)
-        # The API says when its start-up (kernels, rehearsal) ended; then /readyz, which also
+        # Each API says when its start-up (kernels, rehearsal) ended; then /readyz, which also
         # checks the database, confirms (polled only if it does not answer 200 at once).
         deadline = time.monotonic() + ready_timeout_s
-        problem = wait_signal(read_fd, exited, stop, ready_timeout_s)
+        problem = None
+        for read_fd, _ in ready.values():
+            problem = problem or wait_signal(read_fd, exited, stop, max(1.0, deadline - time.monotonic()))
         if problem is None:
             problem = wait_ready(url, exited, stop, max(1.0, deadline - time.monotonic()), say)
         if problem is not None:
@@ -256,7 +281,8 @@ def run(
             say(f"spacearm run: {problem} (see its log above); stopping", True)
             return 1
         where = f"{url} (docs at {url}/docs, metrics at {url}/metrics)"
-        say(f"spacearm API on {where}, {workers} worker(s); Ctrl-C stops them", False)
+        processes = f" ({api_processes} processes)" if api_processes > 1 else ""
+        say(f"spacearm API on {where}{processes}, {workers} worker(s); Ctrl-C stops them", False)
         while not stop.wait(0.5):
             problem = exited()
             if problem is not None:
@@ -266,10 +292,27 @@ def run(
     finally:
         _close(child_ends)
         _close(gates)  # a gate closed unopened: its child exits
-        _close([read_fd])
+        _close(ours)
         _stop_all(children)
+        if metrics_dir is not None:
+            shutil.rmtree(metrics_dir, ignore_errors=True)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def shared_metrics_dir(env: dict[str, str]) -> tuple[str, bool]:
+    """The directory several API processes share their metrics in (prometheus-client's
+    multiprocess mode, :mod:`service.infra.metrics`): ``PROMETHEUS_MULTIPROC_DIR`` if set (its
+    files of an earlier run removed: their counts would be added to this run's), else a new
+    temporary one (removed when the run ends). Returns it and whether it was created."""
+    given = env.get(MULTIPROCESS_DIR, "")
+    if not given:
+        return tempfile.mkdtemp(prefix="spacearm-metrics-"), True
+    folder = Path(given)
+    folder.mkdir(parents=True, exist_ok=True)
+    for stale in folder.glob("*.db"):
+        stale.unlink(missing_ok=True)
+    return str(folder), False
 
 
 def _close(fds: list[int]) -> None:

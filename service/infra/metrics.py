@@ -1,10 +1,16 @@
 """Prometheus metrics (prometheus-client), of two kinds:
 
-- **Per process** (counters and histograms in this process's memory): HTTP requests and their
-  latency by method, route template and status (:class:`service.infra.observability.ObservabilityMiddleware`),
-  plans computed by method and success, and the process's own CPU, memory and file descriptors.
-  With several API processes each one is scraped as a target of its own and the sums are taken
-  in the queries (``sum by (route) (rate(spacearm_http_requests_total[5m]))``).
+- **Of the API processes** (counters, histograms and gauges): HTTP requests and their latency by
+  method, route template and status (:class:`service.infra.observability.ObservabilityMiddleware`),
+  plans computed by method and success, job event streams, and the process's own CPU, memory and
+  file descriptors. One API process keeps them in its memory. Several API processes behind one
+  port (``SPACEARM_API_PROCESSES``, :mod:`service.run`) share a directory
+  (``PROMETHEUS_MULTIPROC_DIR``, prometheus-client's multiprocess mode): each process writes its
+  values to files there, and whichever process answers a scrape sums them all, so one scrape
+  target is the whole API (gauges: the sum over the living processes). The process's own CPU,
+  memory and garbage-collector metrics are then left out: they would describe one process
+  picked at random. API processes scraped as targets of their own instead (each on its own
+  port) are summed in the queries (``sum by (route) (rate(spacearm_http_requests_total[5m]))``).
 - **From the database, at scrape time** (:class:`DatabaseCollector`): tuning jobs by status, the
   age of the oldest queued job, the durations of recently finished jobs, and the heartbeat of
   every worker that holds a job. The queue lives in the database, so every API process reports the
@@ -24,6 +30,7 @@ of how long finished jobs are kept.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections import Counter as Tally
 from collections.abc import Callable, Iterator
@@ -40,6 +47,7 @@ from prometheus_client import (
     disable_created_metrics,
 )
 from prometheus_client.core import GaugeHistogramMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.multiprocess import MultiProcessCollector, mark_process_dead
 from prometheus_client.registry import Collector
 from prometheus_client.utils import floatToGoString
 from sqlalchemy import func, select
@@ -72,7 +80,9 @@ HTTP_SECONDS = Histogram(
     buckets=REQUEST_BUCKETS,
     registry=None,
 )
-HTTP_IN_PROGRESS = Gauge("spacearm_http_requests_in_progress", "requests being handled by this API process", registry=None)
+HTTP_IN_PROGRESS = Gauge(
+    "spacearm_http_requests_in_progress", "requests being handled by this API process", registry=None, multiprocess_mode="livesum"
+)
 PLANS = Counter(
     "spacearm_plans_computed",
     "plans computed and stored by this API process (POST /v1/plans, /v1/plans/shortest-duration), by method and success",
@@ -86,7 +96,9 @@ PLAN_SECONDS = Histogram(
     buckets=PLAN_BUCKETS,
     registry=None,
 )
-EVENT_STREAMS_OPEN = Gauge("spacearm_event_streams_open", "job event streams open in this API process", registry=None)
+EVENT_STREAMS_OPEN = Gauge(
+    "spacearm_event_streams_open", "job event streams open in this API process", registry=None, multiprocess_mode="livesum"
+)
 EVENT_STREAMS_REFUSED = Counter(
     "spacearm_event_streams_refused",
     "job event streams refused with 503 by this API process (SPACEARM_MAX_EVENT_STREAMS open already)",
@@ -210,10 +222,29 @@ class DatabaseCollector(Collector):
         return [jobs, age, heartbeat, busy, lost, durations]
 
 
+#: The environment variable that puts prometheus-client in multiprocess mode (read at its import).
+MULTIPROCESS_DIR = "PROMETHEUS_MULTIPROC_DIR"
+
+
+def shared_dir() -> str | None:
+    """The directory the API processes share their metrics in, or None (one process)."""
+    return os.environ.get(MULTIPROCESS_DIR) or None
+
+
 def registry_for(database: Callable[[], Database | None]) -> CollectorRegistry:
-    """An app's registry: the per-process metrics and a :class:`DatabaseCollector`."""
+    """An app's registry: the API's metrics (this process's, or every API process's summed from
+    :func:`shared_dir`) and a :class:`DatabaseCollector`."""
     registry = CollectorRegistry(auto_describe=False)
-    for collector in PER_PROCESS:
-        registry.register(collector)
+    if shared_dir() is not None:
+        MultiProcessCollector(registry)
+    else:
+        for collector in PER_PROCESS:
+            registry.register(collector)
     registry.register(DatabaseCollector(database))
     return registry
+
+
+def process_exited(pid: int) -> None:
+    """Drop an API process's live gauges from the shared directory (as it stops)."""
+    if shared_dir() is not None:
+        mark_process_dead(pid)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import resource
+import socket
 import time
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -221,4 +222,18 @@ def serve(app: Any, settings: Settings, log_level: str, log_config: dict[str, An
         log_level=log_level,
         log_config=log_config,
     )
-    GuardedServer(config).run()
+    if settings.api_processes > 1:
+        GuardedServer(config).run(sockets=[shared_port_socket(settings.host, settings.port)])
+    else:
+        GuardedServer(config).run()
+
+
+def shared_port_socket(host: str, port: int) -> socket.socket:
+    """A socket bound to ``host:port`` with ``SO_REUSEPORT``: the API processes of one
+    ``spacearm run`` bind the same port, and the kernel spreads new connections over them."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+    sock.bind((host, port))
+    return sock

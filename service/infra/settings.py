@@ -45,6 +45,14 @@ class Settings(BaseSettings):
         "generation over the cluster (needs the `dask` extra)",
     )
     dask_chunks: int = Field(default=8, ge=1, description="pieces each generation is split into for the Dask cluster")
+    api_processes: int = Field(
+        default=1,
+        ge=1,
+        le=64,
+        description="API processes `spacearm run` starts behind its one port (more than 1: each binds with SO_REUSEPORT "
+        "and the kernel spreads connections over them; metrics are summed over them through PROMETHEUS_MULTIPROC_DIR; "
+        "plan admission, rate limits and event-stream limits are per process)",
+    )
     api_threads: int = Field(
         default=16, ge=2, le=256, description="threads of the API's pool for blocking handlers (database reads, plans, figures)"
     )

@@ -226,6 +226,45 @@ def test_run_prints_the_url_once_ready_and_ctrl_c_stops_everything(tmp_path: Pat
     assert not _port_open(port)
 
 
+def test_run_puts_several_api_processes_behind_one_port_with_summed_metrics(tmp_path: Path, runs: list[Run]) -> None:
+    """``--api-processes 2``: both bind the port, connections reach both, and a scrape answered by
+    either counts every request (prometheus-client's multiprocess mode); the shared folder of a
+    run that made it is removed at the end, and a given one is emptied of an earlier run's files."""
+    port = free_port()
+    shared = tmp_path / "metrics"
+    shared.mkdir()
+    (shared / "counter_1.db").write_bytes(b"stale")  # an earlier run's: would add to this run's counts
+    os.environ["PROMETHEUS_MULTIPROC_DIR"] = str(shared)
+    try:
+        run = Run(tmp_path, port, "--workers", "0", "--api-processes", "2")
+    finally:
+        del os.environ["PROMETHEUS_MULTIPROC_DIR"]
+    runs.append(run)
+    url_line = run.until("spacearm API on")
+    assert url_line is not None and "(2 processes)" in url_line, "\n".join(run.seen)
+    served = 0
+    for _ in range(60):  # a connection each: the kernel spreads them over the two sockets
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}") as client:
+            assert client.get("/healthz").status_code == 200
+            served += 1
+    pids = {path.stem.rsplit("_", 1)[1] for path in shared.glob("counter_*.db")}
+    assert len(pids) == 2 and "1" not in pids, pids  # both processes answered; the stale file is gone
+    for _ in range(2):  # whichever process answers the scrape counts all of them
+        text = httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=5).text
+        counted = next(
+            float(line.rsplit(" ", 1)[1])
+            for line in text.splitlines()
+            if line.startswith('spacearm_http_requests_total{method="GET",route="/healthz",status="200"}')
+        )
+        assert counted == served
+        assert "spacearm_http_requests_in_progress 1.0" in text  # this scrape, in either process
+    run.popen.send_signal(signal.SIGINT)
+    assert run.popen.wait(60) == 0
+    assert run.rest().count("Finished server process") == 2
+    assert not _port_open(port)
+    assert shared.is_dir()  # given: kept
+
+
 def test_run_says_why_when_the_api_dies_before_it_is_ready(tmp_path: Path, runs: list[Run]) -> None:
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
