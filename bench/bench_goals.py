@@ -232,11 +232,8 @@ def requests_and_admission(directory: Path) -> list[Goal]:
     worst = max(p99, long_p99)
     return [
         ("POST /v1/plans p50 with one client <= 2.5 ms", f"{p50:.1f} ms", p50 <= 2.5),
-        (
-            "POST /v1/plans >= 400 plans/s with 4 clients (one / two API processes)",
-            f"{rate:.0f} / {rate_two:.0f} plans/s",
-            max(rate, rate_two) >= 400.0,
-        ),
+        ("POST /v1/plans >= 400 plans/s with 4 clients, one API process", f"{rate:.0f} plans/s", rate >= 400.0),
+        ("POST /v1/plans >= 400 plans/s with 4 clients, two API processes", f"{rate_two:.0f} plans/s", rate_two >= 400.0),
         ("100 concurrent paper plans all served", f"{statuses.count(201)} of 100", statuses.count(201) == 100),
         (
             "20,000-step burst: served as far as the timeout allows, the rest 503",

@@ -182,12 +182,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         sweeper = Sweeper(db, settings.retention_days, settings.retention_sweep_s) if settings.retention_days else None
         if sweeper is not None:
             sweeper.start()
-        yield
-        if sweeper is not None:
-            sweeper.stop()
-        db.dispose()
-        app.state.health_db.dispose()
-        process_exited(os.getpid())
+        try:
+            yield
+        finally:
+            try:
+                if sweeper is not None:
+                    sweeper.stop()
+                db.dispose()
+                app.state.health_db.dispose()
+            finally:
+                process_exited(os.getpid())  # its live gauges leave the shared metrics
 
     # /docs and /redoc are ours (service.routers.docs): offline assets, no inline script
     app = FastAPI(

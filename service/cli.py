@@ -46,10 +46,10 @@ def non_negative(text: str) -> int:
     return number
 
 
-def positive(text: str) -> int:
+def api_processes(text: str) -> int:
     number = int(text)
-    if number < 1:
-        raise argparse.ArgumentTypeError(f"{number} is not positive")
+    if not 1 <= number <= 64:
+        raise argparse.ArgumentTypeError(f"{number} is not between 1 and 64")
     return number
 
 
@@ -138,9 +138,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", type=non_negative, default=1, help="worker processes to start (default: 1)")
     r.add_argument(
         "--api-processes",
-        type=positive,
+        type=api_processes,
         default=None,
-        help="API processes behind the one port (default: SPACEARM_API_PROCESSES, else 1); more than one share the "
+        help="API processes behind the one port, 1 to 64 (default: SPACEARM_API_PROCESSES, else 1); more than one share the "
         "port (SO_REUSEPORT) and their metrics (PROMETHEUS_MULTIPROC_DIR, a temporary folder unless set)",
     )
     r.add_argument(

@@ -16,6 +16,7 @@ import os
 import select
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -40,6 +41,8 @@ WORKER_NICENESS = 5
 #: prometheus-client's multiprocess directory (:data:`service.infra.metrics.MULTIPROCESS_DIR`; not
 #: imported from there: the launcher imports no prometheus-client, SQLAlchemy or engine).
 MULTIPROCESS_DIR = "PROMETHEUS_MULTIPROC_DIR"
+#: The setting that tells each API process how many share the port (binding with SO_REUSEPORT).
+API_PROCESSES = "SPACEARM_API_PROCESSES"
 #: The environment variable naming the file descriptor a child waits on before it starts.
 GATE_FD = "SPACEARM_START_GATE_FD"
 
@@ -235,10 +238,16 @@ def run(
     metrics_dir = None
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        shared = {}  # the API processes' environment
+        # The API processes' environment: several share the port and a metrics folder; one has
+        # neither (a PROMETHEUS_MULTIPROC_DIR of ours would add an earlier run's counts to its own).
+        api_base = {k: v for k, v in env.items() if k != MULTIPROCESS_DIR} | {API_PROCESSES: str(api_processes)}
         if api_processes > 1:
+            taken = port_taken(host, port)
+            if taken is not None:
+                say(f"spacearm run: {taken}", True)
+                return 1
             metrics_dir, created = shared_metrics_dir(env)
-            shared = {MULTIPROCESS_DIR: metrics_dir, "SPACEARM_API_PROCESSES": str(api_processes)}
+            api_base[MULTIPROCESS_DIR] = metrics_dir
             metrics_dir = metrics_dir if created else None
         names = apis + [f"worker {i + 1}" if workers > 1 else "worker" for i in range(workers)]
         for name in names:
@@ -247,7 +256,7 @@ def run(
             child_ends.append(gate_read)
             if name in ready:
                 ready_fd = ready[name][1]
-                api_env = {**env, **shared, GATE_FD: str(gate_read), READY_FD: str(ready_fd)}
+                api_env = {**api_base, GATE_FD: str(gate_read), READY_FD: str(ready_fd)}
                 api_args = ["serve", "--host", host, "--port", str(port)]
                 children[name] = start(api_args, api_env, (gate_read, ready_fd))
             else:
@@ -298,6 +307,19 @@ def run(
             shutil.rmtree(metrics_dir, ignore_errors=True)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def port_taken(host: str, port: int) -> str | None:
+    """Why ``host:port`` cannot be shared by our API processes (in use: by another program, or by
+    another run's processes, which ``SO_REUSEPORT`` would let them share), or None."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            return f"cannot bind {host}:{port}: {exc.strerror or exc}"
+    return None
 
 
 def shared_metrics_dir(env: dict[str, str]) -> tuple[str, bool]:

@@ -28,7 +28,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar
-from urllib.parse import quote
+from urllib.parse import quote, unquote
 
 from sqlalchemy import Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
@@ -132,8 +132,8 @@ def sqlite_path(url: str | URL) -> Path | None:
     if parsed.get_backend_name() != "sqlite" or not parsed.database or parsed.database == ":memory:":
         return None
     database = parsed.database
-    if database.startswith("file:"):
-        database = database[5:]
+    if database.startswith("file:"):  # a URI (how make_engine opens an existing file)
+        database = unquote(database[len("file:") :].split("?", 1)[0])
     return Path(database).expanduser()
 
 

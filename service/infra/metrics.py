@@ -69,7 +69,7 @@ PLAN_BUCKETS = (0.001, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 
 
 HTTP_REQUESTS = Counter(
     "spacearm_http_requests",
-    "HTTP requests answered by this API process, by method, route template and status",
+    "HTTP requests answered by the API processes behind this port, by method, route template and status",
     ["method", "route", "status"],
     registry=None,
 )
@@ -81,11 +81,15 @@ HTTP_SECONDS = Histogram(
     registry=None,
 )
 HTTP_IN_PROGRESS = Gauge(
-    "spacearm_http_requests_in_progress", "requests being handled by this API process", registry=None, multiprocess_mode="livesum"
+    "spacearm_http_requests_in_progress",
+    "requests being handled by the API processes behind this port",
+    registry=None,
+    multiprocess_mode="livesum",
 )
 PLANS = Counter(
     "spacearm_plans_computed",
-    "plans computed and stored by this API process (POST /v1/plans, /v1/plans/shortest-duration), by method and success",
+    "plans computed and stored by the API processes behind this port (POST /v1/plans, /v1/plans/shortest-duration), "
+    "by method and success",
     ["method", "success"],
     registry=None,
 )
@@ -97,16 +101,20 @@ PLAN_SECONDS = Histogram(
     registry=None,
 )
 EVENT_STREAMS_OPEN = Gauge(
-    "spacearm_event_streams_open", "job event streams open in this API process", registry=None, multiprocess_mode="livesum"
+    "spacearm_event_streams_open",
+    "job event streams open in the API processes behind this port",
+    registry=None,
+    multiprocess_mode="livesum",
 )
 EVENT_STREAMS_REFUSED = Counter(
     "spacearm_event_streams_refused",
-    "job event streams refused with 503 by this API process (SPACEARM_MAX_EVENT_STREAMS open already)",
+    "job event streams refused with 503 by the API processes behind this port (SPACEARM_MAX_EVENT_STREAMS open already)",
     registry=None,
 )
 EVENT_STREAM_POLLS = Counter(
     "spacearm_event_stream_polls",
-    "database reads of the job event streams of this API process (one per job every 0.5 s, however many listen)",
+    "database reads of the job event streams of the API processes behind this port (one per job and process every 0.5 s, "
+    "however many listen)",
     registry=None,
 )
 #: The per-process metrics (registered in every app's registry, see :func:`registry_for`).

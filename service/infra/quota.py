@@ -4,14 +4,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
-from urllib.parse import unquote
 
 from sqlalchemy import text
 from sqlalchemy.orm import Session
 
 from service.errors import ApiError
+from service.infra.db import sqlite_path
 
 MIB = 2**20
 
@@ -44,17 +45,19 @@ def database_bytes(session: Session) -> int:
 
 def files_bytes(session: Session) -> float:
     """What a SQLite database's file and its write-ahead log hold, at least the bytes it uses (its
-    pages are in the file or, not yet checkpointed, in the log); infinite for other databases."""
+    pages are in the file or, not yet checkpointed, in the log); infinite for other databases, or
+    when the file cannot be found (the pages are counted then)."""
     bind = session.get_bind()
-    name = bind.engine.url.database if bind.dialect.name == "sqlite" else None
-    if name and name.startswith("file:"):  # a URI (service.infra.db opens existing files so)
-        name = unquote(name[len("file:") :].split("?", 1)[0])
-    if not name or name == ":memory:" or "mode=memory" in str(bind.engine.url):
+    path = sqlite_path(bind.engine.url)
+    if path is None or "mode=memory" in str(bind.engine.url):
         return math.inf
     try:
-        return float(sum(os.stat(path).st_size for path in (name, name + "-wal") if os.path.exists(path)))
+        size = os.stat(path).st_size
     except OSError:
         return math.inf
+    with contextlib.suppress(OSError):  # no log (yet): the file holds every page
+        size += os.stat(f"{path}-wal").st_size
+    return float(size)
 
 
 def check_quota(session: Session, quota: int | None, incoming: int) -> None:

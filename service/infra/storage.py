@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 MAGIC = b"spacearm-arrays-2\n"
-#: The low byte planes, stored as they are.
+#: The low byte planes, stored as they are (their number is stored in each blob).
 RAW_PLANES = 6
 #: The first form: the same without the byte planes.
 MAGIC_1 = b"spacearm-arrays-1\n"
@@ -39,7 +39,9 @@ def _array(values: Any) -> np.ndarray:
 
 
 def pack_trajectory(trajectory: Mapping[str, Any]) -> bytes:
-    """The compressed bytes of a trajectory ``{name: array}`` (float64, little-endian)."""
+    """The compressed bytes of a trajectory ``{name: array}`` (float64, little-endian): the magic
+    line, the number of raw planes (one byte), the header's length (four bytes) and the header,
+    the raw planes, the compressed planes."""
     arrays = {name: np.asarray(_array(values), dtype="<f8", order="C") for name, values in trajectory.items()}
     header: dict[str, list[Any]] = {}
     offset = 0
@@ -50,26 +52,28 @@ def pack_trajectory(trajectory: Mapping[str, Any]) -> bytes:
     planes = values.reshape(-1, 8).T
     head = json.dumps(header, separators=(",", ":")).encode()
     low, high = planes[:RAW_PLANES].tobytes(), zlib.compress(planes[RAW_PLANES:].tobytes(), 1)
-    return MAGIC + len(head).to_bytes(4, "little") + head + low + high
+    return MAGIC + bytes([RAW_PLANES]) + len(head).to_bytes(4, "little") + head + low + high
 
 
 def unpack_trajectory(data: bytes) -> dict[str, np.ndarray]:
-    """The arrays of :func:`pack_trajectory`'s bytes (or of a row stored as ``.npz``)."""
+    """The arrays of :func:`pack_trajectory`'s bytes (or of a row stored as ``.npz`` or in the
+    first form)."""
     planed = data.startswith(MAGIC)
     if not planed and not data.startswith(MAGIC_1):
         with np.load(io.BytesIO(data), allow_pickle=False) as archive:
             return {name: archive[name] for name in archive.files}
-    start = len(MAGIC) + 4  # both magic lines have the same length
-    size = int.from_bytes(data[len(MAGIC) : start], "little")
-    header = json.loads(data[start : start + size])
+    start = len(MAGIC) + planed  # both magic lines have the same length
+    raw_planes = data[len(MAGIC)] if planed else 0
+    size = int.from_bytes(data[start : start + 4], "little")
+    header = json.loads(data[start + 4 : start + 4 + size])
+    body = data[start + 4 + size :]
     if planed:
-        body = data[start + size :]
-        n_low = RAW_PLANES * sum(int(np.prod(shape, dtype=np.int64)) for shape, _ in header.values())
+        n_low = raw_planes * sum(int(np.prod(shape, dtype=np.int64)) for shape, _ in header.values())
         low = np.frombuffer(body, dtype=np.uint8, count=n_low)
         high = np.frombuffer(zlib.decompress(body[n_low:]), dtype=np.uint8)
         payload = np.concatenate([low, high]).reshape(8, -1).T.tobytes()
     else:
-        payload = zlib.decompress(data[start + size :])
+        payload = zlib.decompress(body)
     out = {}
     for name, (shape, offset) in header.items():
         count = int(np.prod(shape, dtype=np.int64))

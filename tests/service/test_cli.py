@@ -9,6 +9,7 @@ import json
 import os
 import queue
 import re
+import shutil
 import signal
 import socket
 import sqlite3
@@ -226,6 +227,19 @@ def test_run_prints_the_url_once_ready_and_ctrl_c_stops_everything(tmp_path: Pat
     assert not _port_open(port)
 
 
+def healthz_count(counter: Path, folder: Path) -> float:
+    """The ``GET /healthz`` 200s one API process counted (its counter file, read alone)."""
+    from prometheus_client import CollectorRegistry
+    from prometheus_client.multiprocess import MultiProcessCollector
+
+    folder.mkdir()
+    shutil.copy(counter, folder / counter.name)
+    registry = CollectorRegistry()
+    MultiProcessCollector(registry, path=str(folder))
+    labels = {"method": "GET", "route": "/healthz", "status": "200"}
+    return registry.get_sample_value("spacearm_http_requests_total", labels) or 0.0
+
+
 def test_run_puts_several_api_processes_behind_one_port_with_summed_metrics(tmp_path: Path, runs: list[Run]) -> None:
     """``--api-processes 2``: both bind the port, connections reach both, and a scrape answered by
     either counts every request (prometheus-client's multiprocess mode); the shared folder of a
@@ -247,8 +261,10 @@ def test_run_puts_several_api_processes_behind_one_port_with_summed_metrics(tmp_
         with httpx.Client(base_url=f"http://127.0.0.1:{port}") as client:
             assert client.get("/healthz").status_code == 200
             served += 1
-    pids = {path.stem.rsplit("_", 1)[1] for path in shared.glob("counter_*.db")}
-    assert len(pids) == 2 and "1" not in pids, pids  # both processes answered; the stale file is gone
+    counters = sorted(shared.glob("counter_*.db"))
+    assert len(counters) == 2 and shared / "counter_1.db" not in counters  # the stale file is gone
+    answered = [healthz_count(counter, tmp_path / counter.stem) for counter in counters]
+    assert sum(answered) == served and min(answered) > 0, answered  # both processes answered
     for _ in range(2):  # whichever process answers the scrape counts all of them
         text = httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=5).text
         counted = next(
@@ -285,6 +301,21 @@ def test_run_says_why_when_the_api_dies_before_it_is_ready(tmp_path: Path, runs:
     assert ("spacearm.worker", "INFO", "signal 15: stopping after the current generation") in messages  # stopped too
     # migrated by a child `spacearm migrate`: the launcher imports neither the database nor the engine
     assert ("spacearm.migrate", "INFO", f"database sqlite:///{tmp_path / 'spacearm.db'} at head") in messages
+
+
+def test_several_api_processes_refuse_a_port_in_use(tmp_path: Path, runs: list[Run]) -> None:
+    """SO_REUSEPORT would let them share a port with another program's (or another run's) socket
+    that set it too; the launcher checks the port is free first."""
+    with socket.socket() as taken:
+        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        run = Run(tmp_path, port, "--api-processes", "2", "--workers", "0")
+        runs.append(run)
+        assert run.popen.wait(60) == 1
+    output = run.rest()
+    assert f"spacearm run: cannot bind 127.0.0.1:{port}" in output and "Uvicorn running" not in output, output
 
 
 def test_run_stops_the_api_and_the_worker_when_the_migration_fails(tmp_path: Path, runs: list[Run]) -> None:

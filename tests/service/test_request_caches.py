@@ -4,16 +4,25 @@ building, without ever answering with another task's or robot's."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
+from sqlalchemy import create_engine, text
+from sqlalchemy.orm import Session
 
-from engine import table1_robot
+from engine import run_plan, table1_robot
 from engine.model import table1_with_geometry
+from service.errors import NotFoundError
+from service.infra.db import Database
 from service.infra.lru import Lru
+from service.infra.settings import Settings
+from service.models import Base, Robot
 from service.schemas.common import PAPER_TASK_EXAMPLE
+from service.schemas.plans import PlanRequest
 from service.schemas.robots import model_of
 from service.schemas.tasks import TaskIn
-from service.usecases import plans
+from service.usecases import plans, robots
 
 
 def test_a_task_is_built_once_per_model_and_task() -> None:
@@ -30,17 +39,6 @@ def test_a_task_is_built_once_per_model_and_task() -> None:
     fresh = task_in.to_engine(other)
     assert np.array_equal(on_other.q0, fresh.q0)
     assert np.allclose(on_other.path.start_position, fresh.path.start_position)
-
-
-def test_a_reused_model_id_never_answers_with_another_models_task() -> None:
-    task_in = TaskIn.model_validate({**PAPER_TASK_EXAMPLE, "dt_s": 0.125})
-    kept, other = table1_robot(), table1_with_geometry()
-    wrong = task_in.to_engine(kept)
-    key = (id(other), task_in.model_dump_json())
-    plans._TASKS.put(key, (kept, wrong))  # as if `other` had taken the id of a model no longer kept
-    task = plans.engine_task(task_in, other)
-    assert task is not wrong
-    assert plans.engine_task(task_in, other) is task  # and the right one is kept from then on
 
 
 def test_the_cache_keeps_the_last_values_and_no_failure() -> None:
@@ -64,3 +62,28 @@ def test_the_cache_keeps_the_last_values_and_no_failure() -> None:
     with pytest.raises(ValueError):
         cache.get(9, fail)
     assert cache.get(9, lambda: "nine") == "nine"
+
+
+def test_a_kept_robot_plans_without_the_database_and_its_deletion_is_caught_at_the_insert(tmp_path: Path) -> None:
+    url = f"sqlite:///{tmp_path / 'kept.db'}"
+    engine = create_engine(url)
+    Base.metadata.create_all(engine)
+    with Session(engine) as session:
+        session.add(Robot(id="kept-arm", name="kept", parameters=table1_robot().to_dict(), preset=False))
+        session.commit()
+    db, settings = Database(url), Settings(database_url=url)
+    body = PlanRequest.model_validate({"robot_id": "kept-arm", "task": PAPER_TASK_EXAMPLE, "replay": False})
+    first = plans.prepare(db, body)  # read from the database, then kept
+    assert robots.kept("kept-arm") is first.model
+    with Session(engine) as session:  # as another API process deletes it
+        session.execute(text("DELETE FROM robots WHERE id = 'kept-arm'"))
+        session.commit()
+    again = plans.prepare(db, body)  # no database read: the kept model
+    assert again.model is first.model and again.robot_id == "kept-arm"
+    planned = plans.finish(body, again, run_plan(again.setup, again.inverse), settings, 0.0, {})
+    with pytest.raises(NotFoundError, match="kept-arm"):
+        plans.store(db, settings, planned)  # the foreign key refuses it
+    assert robots.kept("kept-arm") is None
+    with pytest.raises(NotFoundError, match="kept-arm"):
+        plans.prepare(db, body)  # read again: gone
+    db.dispose()

@@ -9,9 +9,11 @@ import json
 import zlib
 
 import numpy as np
+import pytest
 
 from engine import make_inverse, paper_task, run_plan, table1_robot
 from engine.planner import PlanSetup
+from service.infra import storage
 from service.infra.storage import MAGIC, MAGIC_1, pack_trajectory, unpack_trajectory
 from service.usecases.plans import record_of
 
@@ -74,3 +76,13 @@ def test_rows_of_the_first_form_are_still_read_and_the_byte_planes_are_no_larger
     new = pack_trajectory(record)
     print(f"\npaper plan record: {len(new)} bytes with byte planes, {len(old)} without")
     assert len(new) <= len(old)
+
+
+@pytest.mark.parametrize("raw_planes", [0, 3, 8])
+def test_blobs_say_how_many_planes_are_raw(raw_planes: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    arrays = {"q": np.random.default_rng(1).normal(size=(61, 6)), "t": np.linspace(0.0, 15.0, 61)}
+    with monkeypatch.context() as m:
+        m.setattr(storage, "RAW_PLANES", raw_planes)  # as another version would write it
+        data = pack_trajectory(arrays)
+    back = unpack_trajectory(data)
+    assert all(back[k].tobytes() == arrays[k].tobytes() for k in arrays)
