@@ -95,6 +95,15 @@ class Launch:
     def wait(self, timeout: float = 600.0) -> float:
         return self.ready.get(timeout=timeout)
 
+    def worker_warm(self, timeout: float = 120.0) -> None:
+        """Wait for the worker's own "engine kernels ready" (its warm-up ends with the parking
+        of the kernels' linking modules and a heap trim, after which its RSS is what it keeps)."""
+        deadline = time.monotonic() + timeout
+        while not any("spacearm.worker" in line and "engine kernels ready" in line for line in list(self.lines)):
+            if time.monotonic() > deadline:
+                raise RuntimeError("the worker did not finish its warm-up:\n" + "\n".join(self.lines[-20:]))
+            time.sleep(0.1)
+
     @property
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
@@ -122,6 +131,7 @@ def startup(directory: Path) -> list[Goal]:
         launch = Launch(directory / "start.db", {"NUMBA_CACHE_DIR": str(cache)})
         try:
             warm.append(launch.wait())
+            launch.worker_warm()  # the URL says the API is ready; the worker may still be loading
             pids = children_of(launch.proc.pid)
             memory = {"launcher": rss_mib(launch.proc.pid), **{name: rss_mib(pid) for name, pid in pids.items()}}
             with httpx.Client(base_url=launch.url, timeout=60) as client:
