@@ -122,6 +122,7 @@ class Kernels:
         except Exception as exc:  # e.g. not migrated yet: /readyz reports the database itself
             log.info("request rehearsal skipped: %s: %s", type(exc).__name__, exc)
         finally:
+            engine.warmup.settle()  # what the rehearsal freed goes back to the system
             self.ready.set()
             notify_ready("ready")
 
