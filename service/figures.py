@@ -51,6 +51,7 @@ from engine.inverses import METHODS
 from engine.kinematics import kinematics_batch
 from engine.model import RobotModel
 from engine.spatial import log_so3, quaternion_to_matrix
+from service.infra.lru import Lru
 
 if TYPE_CHECKING:
     import matplotlib.path
@@ -1229,25 +1230,14 @@ class LRUCache:
 
 CACHE = LRUCache()
 
-_DATA: OrderedDict[str, PlanData] = OrderedDict()
-_DATA_LOCK = threading.Lock()
 DATA_CACHE_PLANS = 4  # decoded plans kept for rendering their other figures (a 20,000-step plan is ~8 MB)
+_DATA: Lru[str, PlanData] = Lru(DATA_CACHE_PLANS)
 
 
 def plan_data(plan_id: str, load: Callable[[], PlanData]) -> PlanData:
     """The decoded arrays of a plan, from a small LRU (decoding a long plan's JSON costs more
     than drawing one figure, and a plan page asks for all of them at once)."""
-    with _DATA_LOCK:
-        data = _DATA.get(plan_id)
-        if data is not None:
-            _DATA.move_to_end(plan_id)
-            return data
-    data = load()
-    with _DATA_LOCK:
-        _DATA[plan_id] = data
-        while len(_DATA) > DATA_CACHE_PLANS:
-            _DATA.popitem(last=False)
-    return data
+    return _DATA.get(plan_id, load)
 
 
 def cached(key: tuple[Any, ...], make: Callable[[], bytes]) -> tuple[bytes, bool]:
