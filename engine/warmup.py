@@ -33,7 +33,7 @@ from engine.inverses import make_inverse, method_names
 from engine.jacobian import generalized_jacobian
 from engine.kernels import replay as replay_kernels
 from engine.kernels.cache import marker_path
-from engine.kernels.jit import CACHE_DIR, _trim_heap, park_linking_modules
+from engine.kernels.jit import CACHE_DIR, park_linking_modules
 from engine.kinematics import State, forward_kinematics, kinematics_batch
 from engine.model import RobotModel, table1_robot
 from engine.planner import plan, plan_batch
@@ -112,14 +112,6 @@ def warm_up(parts: Sequence[str] = tuple(PARTS)) -> float:
         replay(robot, plan(robot, _task(robot), make_inverse("adaptive")))
     park_linking_modules()
     return time.perf_counter() - start
-
-
-def settle() -> None:
-    """After a process's start-up work that follows :func:`warm_up` (the API's rehearsal of a
-    request): park the linking modules of any kernel loaded since and give the heap's free pages
-    back to the system (1.5 MiB of the API after its rehearsal)."""
-    park_linking_modules()
-    _trim_heap()
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 import engine
+from engine.kernels.jit import park_linking_modules
 from service import errors, openapi
 from service.infra import observability, security
 from service.infra.admission import Admission
@@ -122,7 +123,7 @@ class Kernels:
         except Exception as exc:  # e.g. not migrated yet: /readyz reports the database itself
             log.info("request rehearsal skipped: %s: %s", type(exc).__name__, exc)
         finally:
-            engine.warmup.settle()  # what the rehearsal freed goes back to the system
+            park_linking_modules()  # and what the rehearsal freed goes back to the system
             self.ready.set()
             notify_ready("ready")
 

@@ -41,10 +41,11 @@ def kernel(fn: Callable[..., Any]) -> Any:
 def park_linking_modules() -> int:
     """Keep as bitcode, instead of parsed, the LLVM module numba holds for every loaded kernel in
     case a later compilation links it in (it parses it when it loads a kernel from the cache):
-    about 40 MiB of a process that has loaded every kernel and compiles nothing more, given back
-    to the system at once (:func:`_trim_heap`). A compilation that does link one parses it again
-    then. Returns how many were parked (none if numba's code library no longer looks as
-    expected: then nothing is changed)."""
+    about 40 MiB of a process that has loaded every kernel and compiles nothing more. Then give
+    the heap's free pages back to the system (:func:`_trim_heap`): the parked modules', and
+    whatever else the process freed since (the API calls this again after rehearsing a request).
+    A compilation that does link one parses it again then. Returns how many were parked (none if
+    numba's code library no longer looks as expected: then no module is changed)."""
     parked = 0
     for dispatcher in KERNELS:
         for result in list(dispatcher.overloads.values()):
@@ -55,8 +56,7 @@ def park_linking_modules() -> int:
             library._get_module_for_linking = _relinker(library, module.as_bitcode())
             library._shared_module = None
             parked += 1
-    if parked:
-        _trim_heap()
+    _trim_heap()
     return parked
 
 
