@@ -31,7 +31,7 @@ import threading
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cache, cached_property
 from typing import Any, Protocol
 
 import numpy as np
@@ -328,10 +328,17 @@ def _kept(
     trace = _trace_arrays(count, n, TRACKS[setup.task.tracks])
     t_spline, _, qd_spline, qdd, tau, force, torque = dynamics_kernels.trajectory_buffers(count, n, count)
     dyn = (t_spline, trace[0], qd_spline, qdd, tau, force, torque)  # the spline runs through the trace's samples
-    raw = np.empty(plan_kernels.N_METRICS)
-    args = setup.kernel_args(inverse, kernel_param_rows(inverse, 1)[0], record=True, given=given)
-    plan_kernels.simulate(*args, True, trace, dyn, raw)
-    return raw, trace, dyn
+    raw = np.empty((1, plan_kernels.N_METRICS))
+    args = setup.kernel_args(inverse, kernel_param_rows(inverse, 1), record=True, given=given)
+    plan_kernels.simulate(*args, trace, dyn, 0, 1, raw)
+    return raw[0], trace, dyn
+
+
+@cache
+def _no_samples(n: int, rows: int) -> tuple[tuple[FloatArray, ...], tuple[FloatArray, ...]]:
+    """The trace and dynamics buffers of evaluations that keep metrics only: arrays of no rows
+    (never written, so every thread shares them; the kernel makes its own scratch)."""
+    return _trace_arrays(0, n, rows), tuple(dynamics_kernels.trajectory_buffers(0, n, 0))
 
 
 def _for_each(count: int, fn: Callable[[int], None], threads: int | None) -> None:
@@ -675,6 +682,7 @@ def evaluate(
     that has not started when ``stop`` is set is skipped: :class:`EvaluationStoppedError` is
     raised once the running ones end."""
     args = setup.kernel_args(inverse, kernel_param_rows(inverse, batch))
+    none_kept = _no_samples(setup.model.n_joints, TRACKS[setup.task.tracks])
     out = np.empty((batch, plan_kernels.N_METRICS))
     workers = max(1, threads if threads is not None else default_threads())
     size = batch_size or max(1, math.ceil(batch / (4 * workers)))
@@ -686,7 +694,7 @@ def evaluate(
     def piece(start: int, stop_at: int) -> bool:
         if stop is not None and stop.is_set():
             return False
-        plan_kernels.evaluate_range(*args, start, stop_at, out)
+        plan_kernels.simulate(*args, *none_kept, start, stop_at, out)
         return True
 
     if workers == 1 or len(edges) <= 2:
@@ -735,7 +743,9 @@ def evaluate_setups(setups: Sequence[PlanSetup], inverse: Inverse, *, threads: i
     out = np.empty((len(args), plan_kernels.N_METRICS))
 
     def run(i: int) -> None:
-        plan_kernels.evaluate_range(*args[i], 0, 1, out[i : i + 1])
+        setup = setups[i]
+        none_kept = _no_samples(setup.model.n_joints, TRACKS[setup.task.tracks])
+        plan_kernels.simulate(*args[i], *none_kept, 0, 1, out[i : i + 1])
 
     _for_each(len(args), run, threads)
     return out

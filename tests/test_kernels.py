@@ -224,7 +224,7 @@ def test_kernel_stops_at_a_non_finite_twist(robot, task):
         task.dt,
         0.0,
         1,
-        np.array([0.05, 0.0]),
+        np.array([[0.05, 0.0]]),
         6,
         0,
         0.0,
@@ -233,10 +233,11 @@ def test_kernel_stops_at_a_non_finite_twist(robot, task):
         True,
         (np.zeros((0, 19)), np.zeros((1, 3)), np.zeros((0, 2), dtype=np.int64), np.array([0.0, 0.1, 0.5])),  # no geometry
         np.empty((0, 6)),  # no given rates
-        False,
         trace,
         dynamics_kernels.trajectory_buffers(task.n_steps + 1, 6, 1),
-        metrics,
+        0,
+        1,
+        metrics[None],
     )
     plan_kernels.simulate(robot.chain, robot.chain, task.q0.copy(), twists, *args)
     assert metrics[plan_kernels.FINITE] == 0.0 and metrics[plan_kernels.T_DIVERGED] == 7 * task.dt

@@ -673,7 +673,7 @@ def note_distance(stats, d, t, pair, clearance):
         stats[HIT_D] = d
 
 
-@kernel
+@kernel(inline=True)
 def sample_distances(pairs, vertices, cutoff, clearance, dt, first, refine, buf):
     """Each pair's distance at a sample (shapes posed in ``buf``'s ``posed``): a lower bound
     first, the larger of the bounding spheres' distance and (after the first sample) the last

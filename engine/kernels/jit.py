@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import os
 from collections.abc import Callable
 from typing import Any
@@ -30,10 +31,18 @@ os.environ.setdefault("NUMBA_OPT", "1")
 KERNELS: list[Any] = []
 
 
-def kernel(fn: Callable[..., Any]) -> Any:
+def kernel(fn: Callable[..., Any] | None = None, *, inline: bool = False) -> Any:
     """``numba.njit`` with the on-disk cache, the GIL released and numpy's error model (a numba
-    dispatcher: typed ``Any``, its signature is whatever numba compiles it for)."""
-    dispatcher = njit(cache=True, nogil=True, error_model="numpy")(fn)
+    dispatcher: typed ``Any``, its signature is whatever numba compiles it for).
+
+    ``@kernel(inline=True)``: a kernel with one caller in the engine's compiled code, which numba
+    inlines there (its IR, typed in the caller), instead of compiling it alone and linking it in.
+    numba runs LLVM's optimisation and code generation on every compiled function together with
+    all it links, so each level of calls pays again for the levels below it; an inlined level
+    does not. Called from Python (tests), it compiles alone as any kernel."""
+    if fn is None:
+        return functools.partial(kernel, inline=inline)
+    dispatcher = njit(cache=True, nogil=True, error_model="numpy", inline="always" if inline else "never")(fn)
     KERNELS.append(dispatcher)
     return dispatcher
 

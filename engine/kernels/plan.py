@@ -222,7 +222,7 @@ def base_attitude_step(ch, q, qd, dt, A0):
     return A
 
 
-@kernel
+@kernel(inline=True)
 def _secondary(objective, objective_gain, sv, g, q, centre, qd, null_work):
     null_space_step(objective, objective_gain, sv[3], g[2], q, centre, qd, null_work)
 
@@ -247,7 +247,7 @@ def rate_box(ch, q, dt, speed_limit, lo, hi):
         hi[j] = max(high, -v)
 
 
-@kernel
+@kernel(inline=True)
 def bound_rates(ch, q, dt, speed_limit, U, s, V, damping, lam, xdot, qd, shift, box, qp_buf, C, d, m_rows, d_shifted):
     """The ``bounded`` inverse's step: ``qd (n,)`` holds the damped least-squares rates (plus
     the null-space motion ``shift (n,)`` of a secondary objective, zero without one). If they
@@ -316,7 +316,7 @@ def clearance_work(ch, n):
     )
 
 
-@kernel
+@kernel(inline=True)
 def distance_at(ch, shapes, vertices, a, b, q0, qd, A0, com_w, s, cbuf, work):
     """The distance of shapes ``a`` and ``b`` at ``s`` s into a step that starts at joints
     ``q0`` and base attitude ``A0`` with rates ``qd`` (the planner's joint line and Magnus base
@@ -341,7 +341,7 @@ def distance_at(ch, shapes, vertices, a, b, q0, qd, A0, com_w, s, cbuf, work):
     return d, speed[0]
 
 
-@kernel
+@kernel(inline=True)
 def check_interval(ch, shapes, vertices, a, b, pair, t0, dt, q0, qd, A0, com_w, d0, d1, speed, clearance, cbuf, work):
     """Whether pair ``pair`` (shapes ``a``, ``b``) stays at least ``clearance`` apart over the
     step ``[t0, t0 + dt]`` whose ends are ``d0`` and ``d1`` apart (exact, or lower bounds) and
@@ -407,8 +407,8 @@ def same_chain(a, b):
     return True
 
 
-@kernel
-def simulate(
+@kernel(inline=True)
+def _plan_one(
     ch,
     plant,
     q0,
@@ -809,7 +809,7 @@ def simulate(
     _dynamics_metrics(plant, dt, N, finite and dynamics, qd, dyn, record, metrics)
 
 
-@kernel
+@kernel(inline=True)
 def _dynamics_metrics(ch, dt, N, run, end_rate, dyn, record, metrics):
     """The executed trajectory's dynamics of a finite plan (``run``) into ``dyn`` and their
     peaks into ``metrics``; without ``run`` the recorded rows are NaN and the peaks unknown."""
@@ -863,7 +863,7 @@ def empty_trace(n, rows=6):
 
 
 @kernel
-def evaluate_range(
+def simulate(
     ch,
     plant,
     q0,
@@ -882,22 +882,29 @@ def evaluate_range(
     dynamics,
     geo,
     given,
+    trace,
+    dyn,
     start,
     stop,
     out,
 ):
-    """Metrics ``out[b] (N_METRICS,)`` of parameter sets ``params[b]`` for ``b`` in
-    ``[start, stop)``, no traces kept: memory independent of the number of steps, except with
+    """Plan the parameter sets ``params[b] (B, P)`` for ``b`` in ``[start, stop)`` into their
+    metrics rows ``out[b] (N_METRICS,)`` (:func:`_plan_one` has the arguments). The one step
+    loop of the engine: a single plan is a range of one.
+
+    ``trace`` and ``dyn``: the samples of the range's one plan, kept (``N+1`` rows; see
+    :func:`_plan_one`); or arrays of no rows (:func:`empty_trace`, ``trajectory_buffers(0, n,
+    0)``): only metrics are kept, and memory does not grow with the number of steps, except with
     ``dynamics`` (the effort peaks), whose spline needs the joint samples of one plan at a time
     (``3 (N+1) n`` floats, reused by the plans of the range)."""
     n = q0.shape[0]
-    trace = empty_trace(n, rows)
-    dyn = trajectory_buffers(twists.shape[0] if dynamics else 0, n, 1 if dynamics else 0)
-    # A literal False would compile a second specialisation of simulate (numba types a constant
-    # argument as Literal[bool]): a runtime bool shares the plan's.
     record = trace[0].shape[0] > 0
+    if record and stop - start != 1:
+        raise ValueError("a kept trace holds one plan: the range must be one parameter set")
+    if not record and dynamics and dyn[1].shape[0] == 0:
+        dyn = trajectory_buffers(twists.shape[0], n, 1)
     for b in range(start, stop):
-        simulate(
+        _plan_one(
             ch,
             plant,
             q0,
