@@ -15,11 +15,14 @@ from service.openapi import BEARER
 #: version reads (prometheus-client's default, 1.0.0, would say so only to the newest).
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 
-DESCRIPTION = """Prometheus metrics of this API process (text exposition format 0.0.4).
+DESCRIPTION = """Prometheus metrics of the API (text exposition format 0.0.4).
 
-Per process: `spacearm_http_requests_total` and `spacearm_http_request_duration_seconds` by
-`method`, `route` (the path template) and `status`; `spacearm_plans_computed_total` by `method`
-and `success`; `spacearm_plan_compute_seconds` by `method`; `process_*` and `python_*`.
+Of the API's traffic: `spacearm_http_requests_total` and `spacearm_http_request_duration_seconds`
+by `method`, `route` (the path template) and `status`; `spacearm_plans_computed_total` by `method`
+and `success`; `spacearm_plan_compute_seconds` by `method`. With one API process (the default)
+they are that process's, with `process_*` and `python_*`; with several behind one port
+(`spacearm run --api-processes N`) they are the sums over all of them, whichever process answers,
+and `process_*` and `python_*` are left out.
 
 From the database at each scrape (the same in every API process): `spacearm_tuning_jobs` by
 `status`, `spacearm_tuning_jobs_oldest_queued_age_seconds`, `spacearm_tuning_job_duration_seconds`
