@@ -2,15 +2,15 @@
 
 numba compiles a kernel on its first call and keeps the machine code in its on-disk cache
 (``NUMBA_CACHE_DIR``, or ``__pycache__`` beside the kernels); a process that starts with a warm
-cache loads the kernels in under a second, a cold one compiles them (about a minute). The API
+cache loads the kernels in under a second, a cold one compiles them (under a minute). The API
 and the workers call :func:`warm_up` at start-up so that no user request pays for it.
 
-The kernels fall into :data:`PARTS` that share no compiled function worth counting, so a cold
-cache is filled by one process per part at once (:func:`compile_kernels`, what ``spacearm
-compile`` and ``spacearm run`` use): the planner's step loop alone is most of the work, and the
-other part runs beside it on the second core. A marker file (:mod:`engine.kernels.cache`) records
-that every part was compiled for this CPU, so a later start knows without importing anything heavy.
-
+The kernels fall into :data:`PARTS`, so a cold cache is filled by one process per part at once
+(:func:`compile_kernels`, what ``spacearm compile`` and ``spacearm run`` use): the planner's
+step loop alone is most of the work, and the other part runs beside it on the second core,
+starting with the loop's largest callees (:func:`_loop_callees`) so that the loop's compilation
+loads them instead of compiling them. A marker file (:mod:`engine.kernels.cache`) records that
+every part was compiled for this CPU, so a later start knows without importing anything heavy.
 """
 
 from __future__ import annotations
@@ -27,10 +27,13 @@ from pathlib import Path
 from typing import IO
 
 import numpy as np
+from numba import typeof, types
 
 from engine.executed import executed_motion, executed_trajectory
 from engine.inverses import make_inverse, method_names
 from engine.jacobian import generalized_jacobian
+from engine.kernels import dynamics as dynamics_kernels
+from engine.kernels import qp as qp_kernels
 from engine.kernels import replay as replay_kernels
 from engine.kernels.cache import marker_path
 from engine.kernels.jit import CACHE_DIR, park_linking_modules
@@ -67,11 +70,30 @@ def _planner(robot: RobotModel) -> None:
     plan_batch(robot, task, "adaptive", {"lambda_max": [0.05, 0.06], "epsilon": [0.06, 0.07]}, threads=2)
 
 
+def _loop_callees(robot: RobotModel) -> None:
+    """Compile (without running) the step loop's two largest callees for the argument types the
+    loop gives them: the bounded inverse's QP and the executed trajectory's dynamics, about 15 s
+    of the planner part's compilation, which gets to them last. The tools part compiles them
+    first, so that the planner part finds them in the cache by then and loads them (if it gets
+    there first, it compiles them itself: the same code, the same time as without this)."""
+    n = robot.n_joints
+    vector, matrix = np.zeros(n), np.zeros((n, n))
+    no_rows = (np.zeros((0, n)), np.zeros(0))  # the loop passes the slices C[:m_rows], d[:m_rows]
+    qp_args = (matrix, vector, matrix, vector, 0.0, vector, vector, vector, *no_rows)
+    # the loop passes max_iter as the constant 0, which numba types as the literal
+    qp_types = (*map(typeof, qp_args), types.literal(0), typeof(qp_kernels.qp_buffers(n, 0)))
+    qp_kernels.dls_qp.compile(qp_types)
+    dyn = dynamics_kernels.trajectory_buffers(3, n, 1)
+    dynamics_types = (typeof(robot.chain), types.float64, types.int64, typeof(vector), typeof(dyn), types.boolean)
+    dynamics_kernels.trajectory_dynamics.compile(dynamics_types)
+
+
 def _tools(robot: RobotModel) -> None:
     """Everything but the step loop: the replay's integrators (on a still motion of three
     samples, the argument types of :func:`engine.replay.replay`) and the executed trajectory's
     spline and integration, the figures' kinematics, every inverse on one GJM, and the SO(3)
-    helpers."""
+    helpers; first, the step loop's largest callees (:func:`_loop_callees`)."""
+    _loop_callees(robot)
     t = np.array([0.0, 0.25, 0.5])
     q = np.repeat(Q0[None], 3, axis=0)
     qd = np.zeros_like(q)
