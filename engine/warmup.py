@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 from numba import typeof, types
@@ -33,8 +33,10 @@ from engine.executed import executed_motion, executed_trajectory
 from engine.inverses import make_inverse, method_names
 from engine.jacobian import generalized_jacobian
 from engine.kernels import dynamics as dynamics_kernels
+from engine.kernels import geometry as geometry_kernels
 from engine.kernels import qp as qp_kernels
 from engine.kernels import replay as replay_kernels
+from engine.kernels import svd as svd_kernels
 from engine.kernels.cache import marker_path
 from engine.kernels.jit import CACHE_DIR, park_linking_modules
 from engine.kinematics import State, forward_kinematics, kinematics_batch
@@ -70,22 +72,36 @@ def _planner(robot: RobotModel) -> None:
     plan_batch(robot, task, "adaptive", {"lambda_max": [0.05, 0.06], "epsilon": [0.06, 0.07]}, threads=2)
 
 
-def _loop_callees(robot: RobotModel) -> None:
-    """Compile (without running) the step loop's two largest callees for the argument types the
-    loop gives them: the bounded inverse's QP and the executed trajectory's dynamics, about 15 s
-    of the planner part's compilation, which gets to them last. The tools part compiles them
-    first, so that the planner part finds them in the cache by then and loads them (if it gets
-    there first, it compiles them itself: the same code, the same time as without this)."""
+def loop_callees(robot: RobotModel) -> list[tuple[Any, tuple[Any, ...]]]:
+    """The step loop's largest callees, in the order its compilation gets to them, each with the
+    argument types (numba's) the loop gives it: the clearance check's distance (GJK), the SVD, the
+    bounded inverse's QP and the executed trajectory's dynamics, about 20 s of the planner part's
+    compilation (:func:`_loop_callees`)."""
     n = robot.n_joints
-    vector, matrix = np.zeros(n), np.zeros((n, n))
-    no_rows = (np.zeros((0, n)), np.zeros(0))  # the loop passes the slices C[:m_rows], d[:m_rows]
-    qp_args = (matrix, vector, matrix, vector, 0.0, vector, vector, vector, *no_rows)
-    # the loop passes max_iter as the constant 0, which numba types as the literal
-    qp_types = (*map(typeof, qp_args), types.literal(0), typeof(qp_kernels.qp_buffers(n, 0)))
-    qp_kernels.dls_qp.compile(qp_types)
-    dyn = dynamics_kernels.trajectory_buffers(3, n, 1)
-    dynamics_types = (typeof(robot.chain), types.float64, types.int64, typeof(vector), typeof(dyn), types.boolean)
-    dynamics_kernels.trajectory_dynamics.compile(dynamics_types)
+    array1, array2 = typeof(np.zeros(1)), typeof(np.zeros((1, 1)))
+    return [
+        (geometry_kernels.shape_distance, (array1, array1, array2, typeof(geometry_kernels.gjk_buffers()), array2)),
+        (svd_kernels.jacobi_svd, (array2, typeof(svd_kernels.svd_buffers(n, 6)), types.boolean)),
+        (
+            qp_kernels.dls_qp,
+            # the loop passes max_iter as the constant 0, which numba types as the literal
+            (array2, array1, array2, array1, types.float64, array1, array1, array1, array2, array1, types.literal(0))
+            + (typeof(qp_kernels.qp_buffers(n, 0)),),
+        ),
+        (
+            dynamics_kernels.trajectory_dynamics,
+            (typeof(robot.chain), types.float64, types.int64, array1)
+            + (typeof(dynamics_kernels.trajectory_buffers(3, n, 1)), types.boolean),
+        ),
+    ]
+
+
+def _loop_callees(robot: RobotModel) -> None:
+    """Compile (without running) :func:`loop_callees`. The tools part does this first, so that
+    the planner part finds them in the cache when it gets to them and loads them (if it gets
+    there first, it compiles them itself: the same code, in the same time as without this)."""
+    for kernel, argument_types in loop_callees(robot):
+        kernel.compile(argument_types)
 
 
 def _tools(robot: RobotModel) -> None:

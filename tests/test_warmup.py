@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from typing import Any
 
 import pytest
 
@@ -74,20 +73,15 @@ def test_a_parked_kernel_links_again_into_a_new_compilation() -> None:
 
 
 def test_the_loops_largest_callees_are_compiled_ahead_for_the_loops_own_types() -> None:
-    """``engine.warmup._loop_callees`` compiles the QP and the dynamics for the argument types the
-    step loop gives them. Had it got one type wrong, the loop's compilation would have compiled
-    its own: a second entry in the cache for this CPU (the loop passes ``max_iter`` as a literal
-    0, which tests calling ``dls_qp`` from Python do not)."""
-    from numba import types
-
-    from engine.kernels import dynamics, qp
+    """``engine.warmup.loop_callees`` gives the argument types the step loop gives its largest
+    callees, which the tools part compiles ahead. Had it got one type wrong, the loop's own
+    compilation would have compiled another: a second entry in the cache for this CPU (no test
+    calls these kernels with other types)."""
+    from engine.model import table1_robot
+    from engine.warmup import loop_callees
 
     warm_up()  # the cache is complete
-
-    def signatures(kernel: Any) -> list[tuple[Any, ...]]:
+    for kernel, argument_types in loop_callees(table1_robot()):
         this_cpu = kernel.targetctx.codegen().magic_tuple()
-        return [key[0] for key in kernel._cache._cache_file._load_index() if key[1] == this_cpu]
-
-    loop_qp = [sig for sig in signatures(qp.dls_qp) if isinstance(sig[10], types.IntegerLiteral)]
-    assert len(loop_qp) == 1, loop_qp
-    assert len(signatures(dynamics.trajectory_dynamics)) == 1, signatures(dynamics.trajectory_dynamics)
+        cached = [key[0] for key in kernel._cache._cache_file._load_index() if key[1] == this_cpu]
+        assert cached == [argument_types], (kernel.py_func.__name__, cached)
