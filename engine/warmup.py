@@ -2,13 +2,13 @@
 
 numba compiles a kernel on its first call and keeps the machine code in its on-disk cache
 (``NUMBA_CACHE_DIR``, or ``__pycache__`` beside the kernels); a process that starts with a warm
-cache loads the kernels in under a second, a cold one compiles them (under a minute). The API
+cache loads the kernels in under a second, a cold one compiles them (40 s to a minute). The API
 and the workers call :func:`warm_up` at start-up so that no user request pays for it.
 
 The kernels fall into :data:`PARTS`, so a cold cache is filled by one process per part at once
 (:func:`compile_kernels`, what ``spacearm compile`` and ``spacearm run`` use): the planner's
 step loop alone is most of the work, and the other part runs beside it on the second core,
-starting with the loop's largest callees (:func:`_loop_callees`) so that the loop's compilation
+starting with the loop's largest callees (:func:`_compile_loop_callees`) so that the loop's compilation
 loads them instead of compiling them. A marker file (:mod:`engine.kernels.cache`) records that
 every part was compiled for this CPU, so a later start knows without importing anything heavy.
 """
@@ -16,6 +16,7 @@ every part was compiled for this CPU, so a later start knows without importing a
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import subprocess
 import sys
@@ -34,10 +35,11 @@ from engine.inverses import make_inverse, method_names
 from engine.jacobian import generalized_jacobian
 from engine.kernels import dynamics as dynamics_kernels
 from engine.kernels import geometry as geometry_kernels
+from engine.kernels import plan as plan_kernels
 from engine.kernels import qp as qp_kernels
 from engine.kernels import replay as replay_kernels
 from engine.kernels import svd as svd_kernels
-from engine.kernels.cache import marker_path
+from engine.kernels.cache import cpu_tag, marker_path
 from engine.kernels.jit import CACHE_DIR, park_linking_modules
 from engine.kinematics import State, forward_kinematics, kinematics_batch
 from engine.model import RobotModel, table1_robot
@@ -76,7 +78,7 @@ def loop_callees(robot: RobotModel) -> list[tuple[Any, tuple[Any, ...]]]:
     """The step loop's largest callees, in the order its compilation gets to them, each with the
     argument types (numba's) the loop gives it: the clearance check's distance (GJK), the SVD, the
     bounded inverse's QP and the executed trajectory's dynamics, about 20 s of the planner part's
-    compilation (:func:`_loop_callees`)."""
+    compilation (:func:`_compile_loop_callees`)."""
     n = robot.n_joints
     array1, array2 = typeof(np.zeros(1)), typeof(np.zeros((1, 1)))
     return [
@@ -96,7 +98,7 @@ def loop_callees(robot: RobotModel) -> list[tuple[Any, tuple[Any, ...]]]:
     ]
 
 
-def _loop_callees(robot: RobotModel) -> None:
+def _compile_loop_callees(robot: RobotModel) -> None:
     """Compile (without running) :func:`loop_callees`. The tools part does this first, so that
     the planner part finds them in the cache when it gets to them and loads them (if it gets
     there first, it compiles them itself: the same code, in the same time as without this)."""
@@ -104,12 +106,28 @@ def _loop_callees(robot: RobotModel) -> None:
         kernel.compile(argument_types)
 
 
+def loop_callees_path() -> Path:
+    """The file in the kernel cache that says whether :func:`loop_callees` lists the types the
+    step loop asked for, on this CPU (written where the loop was compiled)."""
+    return CACHE_DIR / f"loop-callees-{cpu_tag()}"
+
+
+def _record_loop_callees(robot: RobotModel) -> None:
+    """In the process that has just compiled the step loop, whose dispatchers of the loop's
+    callees hold exactly the types the loop asked for (compiled or loaded from the cache): write
+    to :func:`loop_callees_path` the callees for which :func:`loop_callees` lists other types
+    (``[]``: none; the tools part compiled each ahead for nothing otherwise)."""
+    wrong = [kernel.py_func.__name__ for kernel, types_ in loop_callees(robot) if kernel.signatures != [types_]]
+    CACHE_DIR.mkdir(parents=True, exist_ok=True)
+    loop_callees_path().write_text(json.dumps(wrong) + "\n")
+
+
 def _tools(robot: RobotModel) -> None:
     """Everything but the step loop: the replay's integrators (on a still motion of three
     samples, the argument types of :func:`engine.replay.replay`) and the executed trajectory's
     spline and integration, the figures' kinematics, every inverse on one GJM, and the SO(3)
-    helpers; first, the step loop's largest callees (:func:`_loop_callees`)."""
-    _loop_callees(robot)
+    helpers; first, the step loop's largest callees (:func:`_compile_loop_callees`)."""
+    _compile_loop_callees(robot)
     t = np.array([0.0, 0.25, 0.5])
     q = np.repeat(Q0[None], 3, axis=0)
     qd = np.zeros_like(q)
@@ -145,6 +163,8 @@ def warm_up(parts: Sequence[str] = tuple(PARTS)) -> float:
     robot = table1_robot()
     for name in parts:
         PARTS[name](robot)
+        if name == "planner" and plan_kernels.simulate.stats.cache_misses:
+            _record_loop_callees(robot)
     if set(parts) == set(PARTS):
         # the replay as the API runs it, from a real plan (its arguments' types as callers pass them)
         replay(robot, plan(robot, _task(robot), make_inverse("adaptive")))

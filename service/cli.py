@@ -147,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--ready-timeout",
         type=float,
         default=600.0,
-        help="seconds to wait for /readyz before giving up (default: 600; the first run compiles the kernels, under a minute)",
+        help="seconds to wait for /readyz before giving up (default: 600; the first run compiles the kernels, 40 s to a minute)",
     )
 
     p = sub.add_parser(

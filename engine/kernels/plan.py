@@ -842,27 +842,6 @@ def _dynamics_metrics(ch, dt, N, run, end_rate, dyn, record, metrics):
 
 
 @kernel
-def empty_trace(n, rows=6):
-    """A trace tuple with no samples (for evaluations that keep only metrics)."""
-    m = min(rows, n)
-    return (
-        np.empty((0, n)),
-        np.empty((0, n)),
-        np.empty((0, 3)),
-        np.empty((0, 3, 3)),
-        np.empty((0, 3)),
-        np.empty((0, 3, 3)),
-        np.empty((0, m)),
-        np.empty(0),
-        np.empty((0, m)),
-        np.empty(0),
-        np.empty(0),
-        np.empty(0),
-        np.empty(0),
-    )
-
-
-@kernel
 def simulate(
     ch,
     plant,
@@ -893,16 +872,20 @@ def simulate(
     loop of the engine: a single plan is a range of one.
 
     ``trace`` and ``dyn``: the samples of the range's one plan, kept (``N+1`` rows; see
-    :func:`_plan_one`); or arrays of no rows (:func:`empty_trace`, ``trajectory_buffers(0, n,
-    0)``): only metrics are kept, and memory does not grow with the number of steps, except with
-    ``dynamics`` (the effort peaks), whose spline needs the joint samples of one plan at a time
-    (``3 (N+1) n`` floats, reused by the plans of the range)."""
+    :func:`_plan_one`); or arrays of no rows (``engine.planner._no_samples``): only metrics are
+    kept, and memory does not grow with the number of steps, except with ``dynamics`` (the
+    effort peaks), whose spline needs the joint samples of one plan at a time (``3 (N+1) n``
+    floats, reused by the plans of the range; the kernel's own unless ``dyn`` has them)."""
     n = q0.shape[0]
+    samples = twists.shape[0]
     record = trace[0].shape[0] > 0
-    if record and stop - start != 1:
-        raise ValueError("a kept trace holds one plan: the range must be one parameter set")
-    if not record and dynamics and dyn[1].shape[0] == 0:
-        dyn = trajectory_buffers(twists.shape[0], n, 1)
+    if record and (stop - start != 1 or trace[0].shape[0] != samples or dyn[1].shape[0] != samples):
+        raise ValueError("a kept trace holds one plan, all its samples: one parameter set, N+1 rows")
+    if not record and dyn[1].shape[0] == 0:
+        # the sizes at run time, not literals: a literal argument would compile another signature
+        dyn = trajectory_buffers(samples if dynamics else 0, n, 1 if dynamics else 0)
+    elif dynamics and dyn[1].shape[0] < samples:
+        raise ValueError("the dynamics buffers hold fewer than the plan's N+1 samples")
     for b in range(start, stop):
         _plan_one(
             ch,
