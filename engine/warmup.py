@@ -113,7 +113,7 @@ def loop_callees_path() -> Path:
 
 
 def _record_loop_callees(robot: RobotModel) -> None:
-    """In the process that has just compiled the step loop, whose dispatchers of the loop's
+    """In a compile part that has just compiled the step loop, whose dispatchers of the loop's
     callees hold exactly the types the loop asked for (compiled or loaded from the cache): write
     to :func:`loop_callees_path` the callees for which :func:`loop_callees` lists other types
     (``[]``: none; the tools part compiled each ahead for nothing otherwise)."""
@@ -151,11 +151,15 @@ def _tools(robot: RobotModel) -> None:
 PARTS: dict[str, Callable[[RobotModel], None]] = {"planner": _planner, "tools": _tools}
 
 
-def warm_up(parts: Sequence[str] = tuple(PARTS)) -> float:
+def warm_up(parts: Sequence[str] = tuple(PARTS), *, record_loop_callees: bool = False) -> float:
     """Run every kernel of ``parts`` (default: all) once on a two-step task of the Table-1 robot
     (every inverse method, plans with and without traces, the replay, the GJM and the SO(3)
     helpers), then park the loaded kernels' linking modules
-    (:func:`engine.kernels.jit.park_linking_modules`). Returns the seconds it took."""
+    (:func:`engine.kernels.jit.park_linking_modules`). Returns the seconds it took.
+
+    ``record_loop_callees``: if this process compiles the step loop, record what
+    :func:`_record_loop_callees` says (:func:`compile_kernels`'s parts do; another process may
+    have called the callees from Python first, with other types)."""
     unknown = set(parts) - set(PARTS)
     if unknown:
         raise ValueError(f"unknown kernel part(s) {sorted(unknown)}; the parts are {list(PARTS)}")
@@ -163,7 +167,7 @@ def warm_up(parts: Sequence[str] = tuple(PARTS)) -> float:
     robot = table1_robot()
     for name in parts:
         PARTS[name](robot)
-        if name == "planner" and plan_kernels.simulate.stats.cache_misses:
+        if record_loop_callees and name == "planner" and plan_kernels.simulate.stats.cache_misses:
             _record_loop_callees(robot)
     if set(parts) == set(PARTS):
         # the replay as the API runs it, from a real plan (its arguments' types as callers pass them)
@@ -213,7 +217,10 @@ def _command(part: str) -> list[str]:
     """A child warming ``part`` with this very engine package (numba keys its cache by the kernels'
     source paths: a source tree in the working directory must not stand in for it)."""
     root = str(Path(__file__).resolve().parent.parent)
-    code = "import sys; sys.path.insert(0, sys.argv[1]); from engine.warmup import warm_up; warm_up(sys.argv[2:])"
+    code = (
+        "import sys; sys.path.insert(0, sys.argv[1]); from engine.warmup import warm_up; "
+        "warm_up(sys.argv[2:], record_loop_callees=True)"
+    )
     return [sys.executable, "-P", "-c", code, root, part]
 
 

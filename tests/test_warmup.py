@@ -74,7 +74,7 @@ def test_a_parked_kernel_links_again_into_a_new_compilation() -> None:
 
 def test_the_loops_largest_callees_were_compiled_ahead_for_the_loops_own_types() -> None:
     """``engine.warmup.loop_callees`` gives the argument types the step loop gives its largest
-    callees, which the tools part compiles ahead. The process that compiled the loop recorded
+    callees, which the tools part compiles ahead. The compile part that compiled the loop recorded
     the callees whose types the loop asked for were other than listed (the loop then compiled
     its own beside them)."""
     warm_up()  # the cache is complete
