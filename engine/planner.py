@@ -220,7 +220,9 @@ class PlanSetup:
         """The same setup run on ``plant`` from joints ``start (n,)`` while the controller keeps
         this setup's model (same task and path; not checked again: a start outside the limits is
         found by the plan)."""
-        return self._copy(plant=plant, start=np.ascontiguousarray(start, dtype=float))
+        # a writable copy: a read-only start (a task's q0 is one) is another type to numba, for
+        # which it would compile the whole step loop again
+        return self._copy(plant=plant, start=np.array(start, dtype=float))
 
     def _copy(self, **values: Any) -> PlanSetup:
         setup = object.__new__(PlanSetup)

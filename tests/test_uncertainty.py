@@ -12,6 +12,7 @@ import pytest
 
 from engine import make_inverse, paper_task, replay, run_plan, table1_robot
 from engine.errors import ParameterError
+from engine.kernels import plan as plan_kernels
 from engine.landscape import landscape
 from engine.planner import PlanOptions, PlanSetup
 from engine.robustness import robustness, sampled_setups, statistic
@@ -103,6 +104,9 @@ def test_the_closed_loop_with_gain_zero_and_the_exact_model_is_the_plan() -> Non
 
     _, position, attitude = evaluate_traced([same], INVERSE)
     assert np.array_equal(position[0], own.position_error) and np.array_equal(attitude[0], own.attitude_error)
+    # the task's q0 is read-only, a type of its own to numba: the start is copied, so the step
+    # loop is the one already compiled, not a second compilation of it
+    assert len(plan_kernels.simulate.signatures) == 1, plan_kernels.simulate.signatures
 
 
 def test_the_open_loop_matches_an_independent_integration_on_each_sampled_robot() -> None:
