@@ -283,7 +283,8 @@ class PlanSetup:
         open-loop replay)."""
         head, tail = self._args
         geometry = self.geometry.kernel_args()
-        rates = np.empty((0, self.model.n_joints)) if given is None else np.ascontiguousarray(given, dtype=float)
+        # a writable copy, as the start in under(): a read-only array would compile the loop again
+        rates = np.empty((0, self.model.n_joints)) if given is None else np.array(given, dtype=float)
         return (*head, int(inverse.method_id), params, *tail, bool(record or self.model.effort_limited), geometry, rates)
 
     def metrics(self, raw: FloatArray) -> Metrics[Column]:
