@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import logging
 import os
 import threading
@@ -92,12 +93,20 @@ WARM_UP_PATHS = (
 class Kernels:
     """Loads (or compiles) the engine's kernels in a background thread at start-up, then
     rehearses a plan request (rolled back): liveness answers at once, readiness once the kernels
-    are in (see :func:`engine.warm_up`), so the first request runs at the steady-state speed."""
+    are in (see :func:`engine.warm_up`), so the first request runs at the steady-state speed.
 
-    def __init__(self, app: FastAPI, db: Database, settings: Settings) -> None:
+    ``freeze_heap``: then, once ready, move every object the start-up made out of the cyclic garbage
+    collector's sight (:func:`gc.freeze`). They are about 240,000 (numba's, FastAPI's, pydantic's)
+    and all live as long as the process; a full collection walked them all, a pause of 100 to 400 ms
+    in a burst of plans (every few hundred requests), which stalled every request and ``/healthz``
+    with it. Only for a process of its own (``spacearm serve``): in a test process it would freeze
+    the tests' objects too."""
+
+    def __init__(self, app: FastAPI, db: Database, settings: Settings, freeze_heap: bool = False) -> None:
         self.app = app
         self.db = db
         self.settings = settings
+        self.freeze_heap = freeze_heap
         self.ready = threading.Event()
         self.error: str | None = None
         self.seconds: float | None = None
@@ -126,6 +135,9 @@ class Kernels:
             park_linking_modules()  # and what the rehearsal freed goes back to the system
             self.ready.set()
             notify_ready("ready")
+        if self.freeze_heap:
+            gc.collect()  # the start-up's garbage first: a frozen cycle is never freed
+            gc.freeze()
 
     async def _visit_routers(self) -> None:
         """FastAPI prepares each router's routes on the first request that reaches it; send each
@@ -150,7 +162,8 @@ class Kernels:
         return "ok" if self.error is None else f"failed: {self.error}"
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
+def create_app(settings: Settings | None = None, *, freeze_heap: bool = False) -> FastAPI:
+    """The API (``freeze_heap``: see :class:`Kernels`; ``spacearm serve`` sets it)."""
     settings = settings or Settings()
 
     @asynccontextmanager
@@ -177,7 +190,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.figure_admission = Admission("figure renders", slots, 4 * slots, settings.plan_queue_timeout_s)
         app.state.job_feeds = JobFeeds(db, job_events.POLL_S, settings.max_event_streams)
         app.state.login_limiter = AddressLimiter("login", settings.login_attempts_per_minute)
-        app.state.kernels = Kernels(app, db, settings)
+        app.state.kernels = Kernels(app, db, settings, freeze_heap)
         app.state.kernels.start()
         with contextlib.suppress(Exception):  # not migrated yet: /readyz says so
             seed_presets(db)

@@ -263,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
             logging.getLogger("spacearm.api").warning(
                 "authentication is OFF and the API listens on %s: set SPACEARM_API_KEYS before exposing it", settings.host
             )
-        serve(create_app(settings), settings, log_level, log_config)
+        serve(create_app(settings, freeze_heap=True), settings, log_level, log_config)
         return 0
     if args.command == "worker":
         _stop_while_starting("spacearm.worker")

@@ -3,6 +3,7 @@ readiness only once they are in (or says why they failed)."""
 
 from __future__ import annotations
 
+import gc
 import threading
 import time
 from pathlib import Path
@@ -49,3 +50,34 @@ def test_a_failed_kernel_load_keeps_the_api_unready(tmp_path: Path, monkeypatch:
             time.sleep(0.01)
         assert body["status"] == "unavailable" and body["kernels"] == "failed: RuntimeError: no writable numba cache"
         assert client.get("/healthz").status_code == 200
+
+
+def test_a_served_api_freezes_its_start_up_objects_once_ready(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``spacearm serve`` (``freeze_heap``) takes the start-up's objects out of the garbage
+    collector's full collections once ready; an app made without it (tests, embedding) leaves
+    the collector alone."""
+    monkeypatch.setattr(engine, "warm_up", lambda: 0.0)
+    url = f"sqlite:///{tmp_path / 'startup.db'}"
+    upgrade(url, "head")
+    before = gc.get_freeze_count()
+    try:
+        with _app(tmp_path) as client:
+            _wait_ready(client)
+            time.sleep(0.2)  # the freeze follows readiness
+            assert gc.get_freeze_count() == before
+        with TestClient(create_app(Settings(database_url=url), freeze_heap=True), base_url="http://localhost") as client:
+            _wait_ready(client)
+            deadline = time.monotonic() + 10
+            while gc.get_freeze_count() <= before:
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+            assert client.get("/healthz").status_code == 200
+    finally:
+        gc.unfreeze()  # the test process's objects go back to the collector
+
+
+def _wait_ready(client: TestClient) -> None:
+    deadline = time.monotonic() + 10
+    while client.get("/readyz").status_code != 200:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
