@@ -40,7 +40,7 @@ from engine.kernels import qp as qp_kernels
 from engine.kernels import replay as replay_kernels
 from engine.kernels import svd as svd_kernels
 from engine.kernels.cache import cpu_tag, marker_path
-from engine.kernels.jit import CACHE_DIR, park_linking_modules
+from engine.kernels.jit import CACHE_DIR, KERNELS, park_linking_modules
 from engine.kinematics import State, forward_kinematics, kinematics_batch
 from engine.model import RobotModel, table1_robot
 from engine.planner import plan, plan_batch
@@ -122,6 +122,22 @@ def _record_loop_callees(robot: RobotModel) -> None:
     loop_callees_path().write_text(json.dumps(wrong) + "\n")
 
 
+def signatures_path(part: str) -> Path:
+    """The file in the kernel cache that lists the kernels the compile part ``part`` compiled
+    (or loaded) for more than one signature on this CPU, written where the part was compiled."""
+    return CACHE_DIR / f"signatures-{part}-{cpu_tag()}"
+
+
+def _record_signatures(part: str) -> None:
+    """Write :func:`signatures_path`: ``{kernel: [signature, ...]}`` for every kernel with more
+    than one signature in this process, which has just compiled ``part`` (its dispatchers hold
+    every signature its kernels' callers asked for, nested calls included; a literal argument,
+    ``True`` or ``0``, is a signature of its own and a compilation more)."""
+    several = {k.py_func.__qualname__: [str(s) for s in k.signatures] for k in KERNELS if len(k.signatures) > 1}
+    CACHE_DIR.mkdir(parents=True, exist_ok=True)
+    signatures_path(part).write_text(json.dumps(several, indent=1, sort_keys=True) + "\n")
+
+
 def _tools(robot: RobotModel) -> None:
     """Everything but the step loop: the replay's integrators (on a still motion of three
     samples, the argument types of :func:`engine.replay.replay`) and the executed trajectory's
@@ -151,15 +167,15 @@ def _tools(robot: RobotModel) -> None:
 PARTS: dict[str, Callable[[RobotModel], None]] = {"planner": _planner, "tools": _tools}
 
 
-def warm_up(parts: Sequence[str] = tuple(PARTS), *, record_loop_callees: bool = False) -> float:
+def warm_up(parts: Sequence[str] = tuple(PARTS), *, record: bool = False) -> float:
     """Run every kernel of ``parts`` (default: all) once on a two-step task of the Table-1 robot
     (every inverse method, plans with and without traces, the replay, the GJM and the SO(3)
     helpers), then park the loaded kernels' linking modules
     (:func:`engine.kernels.jit.park_linking_modules`). Returns the seconds it took.
 
-    ``record_loop_callees``: if this process compiles the step loop, record what
-    :func:`_record_loop_callees` says (:func:`compile_kernels`'s parts do; another process may
-    have called the callees from Python first, with other types)."""
+    ``record``: for a part this process compiles, write :func:`_record_signatures` and, for the
+    step loop, :func:`_record_loop_callees` (:func:`compile_kernels`' parts do, each running one
+    part; another process may have called kernels from Python first, with other types)."""
     unknown = set(parts) - set(PARTS)
     if unknown:
         raise ValueError(f"unknown kernel part(s) {sorted(unknown)}; the parts are {list(PARTS)}")
@@ -167,7 +183,9 @@ def warm_up(parts: Sequence[str] = tuple(PARTS), *, record_loop_callees: bool = 
     robot = table1_robot()
     for name in parts:
         PARTS[name](robot)
-        if record_loop_callees and name == "planner" and plan_kernels.simulate.stats.cache_misses:
+        if record and any(k.stats.cache_misses for k in KERNELS):
+            _record_signatures(name)
+        if record and name == "planner" and plan_kernels.simulate.stats.cache_misses:
             _record_loop_callees(robot)
     if set(parts) == set(PARTS):
         # the replay as the API runs it, from a real plan (its arguments' types as callers pass them)
@@ -217,10 +235,7 @@ def _command(part: str) -> list[str]:
     """A child warming ``part`` with this very engine package (numba keys its cache by the kernels'
     source paths: a source tree in the working directory must not stand in for it)."""
     root = str(Path(__file__).resolve().parent.parent)
-    code = (
-        "import sys; sys.path.insert(0, sys.argv[1]); from engine.warmup import warm_up; "
-        "warm_up(sys.argv[2:], record_loop_callees=True)"
-    )
+    code = "import sys; sys.path.insert(0, sys.argv[1]); from engine.warmup import warm_up; warm_up(sys.argv[2:], record=True)"
     return [sys.executable, "-P", "-c", code, root, part]
 
 

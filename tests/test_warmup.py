@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from engine.warmup import PARTS, loop_callees_path, warm_up
+from engine.warmup import PARTS, loop_callees_path, signatures_path, warm_up
 
 SCRIPT = """
 import json
@@ -82,3 +82,21 @@ def test_the_loops_largest_callees_were_compiled_ahead_for_the_loops_own_types()
     if not recorded.exists():
         pytest.fail(f"{recorded} is missing: the step loop was not compiled by this version (`spacearm compile --force`)")
     assert json.loads(recorded.read_text()) == [], recorded.read_text()
+
+
+#: Kernels compiled for two signatures on purpose: ``_complete`` completes the rows of the SVD's
+#: warm start (a whole array) and of its ``W`` (a column slice, numba's layout ``A``).
+SEVERAL_SIGNATURES = {"_complete"}
+
+
+@pytest.mark.parametrize("part", list(PARTS))
+def test_each_part_compiled_its_kernels_for_one_signature(part: str) -> None:
+    """A literal argument (``True``, ``0``) makes numba compile a kernel again for that literal:
+    callers pass runtime values (``np.bool_(True)``, ``np.int64(0)``). Each compile part recorded
+    the kernels it compiled or loaded for more than one signature, nested calls included."""
+    warm_up()  # the cache is complete
+    recorded = signatures_path(part)
+    if not recorded.exists():
+        pytest.fail(f"{recorded} is missing: the {part} part was not compiled by this version (`spacearm compile --force`)")
+    several = json.loads(recorded.read_text())
+    assert set(several) <= SEVERAL_SIGNATURES, several

@@ -258,7 +258,7 @@ def angular_map(ch, kin, g):
             Omega[0, j] = w1 * k2 - w2 * k1
             Omega[1, j] = w2 * k0 - w0 * k2
             Omega[2, j] = w0 * k1 - w1 * k0
-    _add_body(ch.inertias, ch.masses[0], 0, att, com[0, 0] - r_g[0], com[0, 1] - r_g[1], com[0, 2] - r_g[2], T, tmp)
+    _add_body(ch.inertias, ch.masses[0], np.int64(0), att, com[0, 0] - r_g[0], com[0, 1] - r_g[1], com[0, 2] - r_g[2], T, tmp)
     # Cholesky of the symmetric positive definite H_s = T, then Omega = -H_s^-1 H_sq.
     l00 = np.sqrt(T[0, 0])
     l10 = T[1, 0] / l00

@@ -262,7 +262,7 @@ def inverse_dynamics_many(ch, q, qd, qdd, A0, origin, tau, force, torque, base_t
     work = dynamics_buffers(n)
     bad = 0
     for k in range(q.shape[0]):
-        kinematics(ch, q[k], A0[k], origin[k], False, kin)
+        kinematics(ch, q[k], A0[k], origin[k], np.bool_(False), kin)
         gjm(ch, kin, g)
         base_map = g[1]
         for r in range(6):
@@ -334,7 +334,7 @@ def trajectory_dynamics(ch, dt, count, end_rate, work, record):
     over_time = np.nan
     for k in range(count):
         row = k if record else 0
-        kinematics(ch, q[k], eye, origin, False, kin)
+        kinematics(ch, q[k], eye, origin, np.bool_(False), kin)
         gjm(ch, kin, g)
         base_map = g[1]
         for r in range(6):

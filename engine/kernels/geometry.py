@@ -289,14 +289,14 @@ def _closest(W, A, B, lam, count, idx, best_idx, best_lam):
         lam[0] = 1.0
         return 1
     if count == 2:
-        kept = _segment(W, A, B, lam, 0, 1, idx)
+        kept = _segment(W, A, B, lam, np.int64(0), np.int64(1), idx)
         return _keep(W, A, B, lam, idx, kept)
     if count == 3:
-        kept = _triangle(W, A, B, lam, 0, 1, 2, idx)
+        kept = _triangle(W, A, B, lam, np.int64(0), np.int64(1), np.int64(2), idx)
         return _keep(W, A, B, lam, idx, kept)
     # tetrahedron: the nearest of the faces the origin is outside of
     best = np.inf
-    best_count = 0
+    best_count = np.int64(0)  # int64 from the start: numba would first type the call of _keep with a literal 0
     for face in range(4):  # the face opposite vertex ``face``
         i = 1 if face == 0 else 0
         j = 1 if face == 2 or face == 3 else 2

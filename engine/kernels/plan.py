@@ -121,7 +121,7 @@ LIMIT_SHRINK = 1.0 - 8.0 * 2.220446049250313e-16
 @kernel
 def _body_rate(ch, q, qd, kin, g, eye, zero, out):
     """``out = Omega_b(q) qd``: the base angular velocity in the base frame."""
-    kinematics(ch, q, eye, zero, True, kin)
+    kinematics(ch, q, eye, zero, np.bool_(True), kin)
     angular_map(ch, kin, g)
     Omega = g[2]
     for r in range(3):
@@ -182,7 +182,7 @@ def advance(ch, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work):
         if sub == S - 1:
             for j in range(n):
                 q_next[j] = q[j] + qd[j] * dt
-            kinematics(ch, q_next, eye, zero, True, kin)
+            kinematics(ch, q_next, eye, zero, np.bool_(True), kin)
             gjm(ch, kin, g)
             for r in range(3):
                 acc = 0.0
@@ -215,7 +215,7 @@ def base_attitude_step(ch, q, qd, dt, A0):
     n = q.shape[0]
     kin = kinematics_buffers(n)
     g = gjm_buffers(n)
-    kinematics(ch, q, np.eye(3), np.zeros(3), True, kin)
+    kinematics(ch, q, np.eye(3), np.zeros(3), np.bool_(True), kin)
     gjm(ch, kin, g)
     A = A0.copy()
     advance(ch, q, qd, dt, A, kin, g, kinematics_buffers(n), gjm_buffers(n), np.empty(n), advance_buffers(n))
@@ -326,15 +326,15 @@ def distance_at(ch, shapes, vertices, a, b, q0, qd, A0, com_w, s, cbuf, work):
     posed2, witness2, gjk = cbuf[10], cbuf[11], cbuf[8]
     eye = adv[7]
     zero = adv[8]
-    kinematics(ch, q0, eye, zero, True, kin)
+    kinematics(ch, q0, eye, zero, np.bool_(True), kin)
     gjm(ch, kin, g)
     for r in range(3):
         for c in range(3):
             A_s[r, c] = A0[r, c]
     if s > 0.0:
         advance(ch, q0, qd, s, A_s, kin, g, kin_m, g_m, q_s, adv)  # kin and g now of q0 + s qd
-    pose_into(shapes, a, kin[0], kin[1], A_s, com_w, posed2, 0)
-    pose_into(shapes, b, kin[0], kin[1], A_s, com_w, posed2, 1)
+    pose_into(shapes, a, kin[0], kin[1], A_s, com_w, posed2, np.int64(0))
+    pose_into(shapes, b, kin[0], kin[1], A_s, com_w, posed2, np.int64(1))
     d = shape_distance(posed2[0], posed2[1], vertices, gjk, witness2)
     joint_reach(posed2, slide, kin, reach)
     pair_speeds(posed2, one_pair, reach, g[1], qd, speed)
@@ -517,10 +517,10 @@ def _plan_one(
     m_rows = 0
     qp_buf = qp_buffers(n, n_pairs)
 
-    kinematics(plant, q, eye, zero, True, kin)
+    kinematics(plant, q, eye, zero, np.bool_(True), kin)
     gjm(plant, kin, g)
     if separate:
-        kinematics(ch, q, eye, zero, True, kin_c)
+        kinematics(ch, q, eye, zero, np.bool_(True), kin_c)
         gjm(ch, kin_c, g_c)
     _, com_b, _, _, ee_p_b, ee_A_b = kin
     J_b = g_c[0] if rows == 6 else g_c[0][:3]  # the tracked rows of the GJM (a view: gjm writes in place)
@@ -748,7 +748,7 @@ def _plan_one(
         for j in range(n):
             q[j] = q_next[j]
         if separate:
-            kinematics(ch, q, eye, zero, True, kin_c)
+            kinematics(ch, q, eye, zero, np.bool_(True), kin_c)
             gjm(ch, kin_c, g_c)
         _, com_b, _, _, ee_p_b, ee_A_b = kin
 

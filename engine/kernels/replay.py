@@ -193,7 +193,7 @@ def _rhs(ch, coef_k, t_k, t, y, dy, work):
         q[j] = pos
         qd[j] = rate
     quaternion_to_matrix(y[3:], A0)
-    kinematics(ch, q, A0, y[:3], False, kin)
+    kinematics(ch, q, A0, y[:3], np.bool_(False), kin)
     ok = base_twist(ch, kin, qd, v_j, w_j, twist)
     w0 = twist[3]
     w1 = twist[4]
@@ -374,7 +374,7 @@ def evaluate_samples(ch, q, qd, ys, ee_p, ee_A, base_A, lin_res, ang_res, com):
     tmp = np.empty((3, 3))
     for k in range(q.shape[0]):
         quaternion_to_matrix(ys[k, 3:], A0)
-        kinematics(ch, q[k], A0, ys[k, :3], False, kin)
+        kinematics(ch, q[k], A0, ys[k, :3], np.bool_(False), kin)
         att, bcom, _, _, p_e, A_e = kin
         for r in range(3):
             ee_p[k, r] = p_e[r]
