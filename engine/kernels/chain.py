@@ -351,5 +351,7 @@ def gjm_many(ch, q, A0, origin, about_com, J, base_map):
     for b in range(q.shape[0]):
         kinematics(ch, q[b], A0[b], origin[b], about_com, kin)
         gjm(ch, kin, g)
-        J[b] = g[0]
-        base_map[b] = g[1]
+        for r in range(6):
+            for j in range(n):
+                J[b, r, j] = g[0][r, j]
+                base_map[b, r, j] = g[1][r, j]

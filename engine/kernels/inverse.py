@@ -182,4 +182,5 @@ def solve_many(method, params, J, xdot, qd, damping, sv):
         else:
             qd[b] = np.nan
             damping[b] = np.nan
-        sv[b] = buf[2]
+        for i in range(buf[2].shape[0]):
+            sv[b, i] = buf[2][i]

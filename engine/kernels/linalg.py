@@ -37,7 +37,9 @@ def lu6(A, y):
 @kernel
 def det6(J, A):
     """Determinant of a 6x6 matrix ``J``, eliminated in the scratch ``A (6, 6)``."""
-    A[:, :] = J
+    for r in range(6):  # element by element: an array assignment compiles numba's shape-error text
+        for c in range(6):
+            A[r, c] = J[r, c]
     y = A[0].copy()
     sign = lu6(A, y)
     det = float(sign)

@@ -225,8 +225,9 @@ def integrate(ch, t, q, qd, ys, rtol, atol):
     N = t.shape[0] - 1
     coef = np.empty((N, 2, q.shape[1]))
     for k in range(N):
-        coef[k, 0] = q[k]
-        coef[k, 1] = qd[k]
+        for j in range(q.shape[1]):
+            coef[k, 0, j] = q[k, j]
+            coef[k, 1, j] = qd[k, j]
     return integrate_motion(ch, t, coef, ys, rtol, atol)
 
 

@@ -271,6 +271,9 @@ def svd_many(J, U, s, V):
     for b in range(J.shape[0]):
         buf = svd_buffers(n, J.shape[1])
         jacobi_svd(J[b], buf, refresh)
-        U[b] = buf[1]
-        s[b] = buf[2]
-        V[b] = buf[3]
+        for i in range(buf[2].shape[0]):
+            s[b, i] = buf[2][i]
+            for r in range(J.shape[1]):
+                U[b, r, i] = buf[1][r, i]
+            for r in range(n):
+                V[b, r, i] = buf[3][r, i]
