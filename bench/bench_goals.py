@@ -182,13 +182,12 @@ print(json.dumps(latencies))
 def burst(url: str, body: dict[str, Any], count: int) -> tuple[list[int], float]:
     """``count`` concurrent plans; their status codes and /healthz's p99 (ms) meanwhile."""
     host, port = url.split("//")[1].rsplit(":", 1)
-    poller = subprocess.Popen(
-        [sys.executable, "-c", POLLER, host, port], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
-    )
-
     # One client for all the threads, made before the burst: each httpx.Client loads the CA bundle
     # (about 27 ms of CPU here), which would put seconds of client work on the server's two cores.
     client = httpx.Client(base_url=url, timeout=120, limits=httpx.Limits(max_connections=count))
+    poller = subprocess.Popen(
+        [sys.executable, "-c", POLLER, host, port], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
 
     def post(_: int) -> int:
         return client.post("/v1/plans?fields=", json=body).status_code

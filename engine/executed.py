@@ -88,15 +88,17 @@ def executed_trajectory(
 ) -> ExecutedTrajectory:
     """The clamped cubic spline through ``q (N+1, n)`` at increasing ``t (N+1,)`` (N >= 1), with
     rates ``start_rate`` and ``end_rate (n,)`` at the ends (default: zero)."""
-    t = np.ascontiguousarray(t, dtype=float)
-    q = np.ascontiguousarray(q, dtype=float)
+    # copies, writable: a read-only array (a stored plan's, a broadcast rate) is another type to
+    # numba, which would compile the spline again at run time
+    t = np.array(t, dtype=float)
+    q = np.array(q, dtype=float)
     if t.ndim != 1 or t.shape[0] < 2 or q.ndim != 2 or q.shape[0] != t.shape[0]:
         raise ParameterError("t", f"expected N+1 >= 2 times and (N+1, n) positions, got {t.shape} and {q.shape}")
     if not np.all(np.diff(t) > 0.0):
         raise ParameterError("t", "sample times must increase")
     n = q.shape[1]
-    v0 = np.zeros(n) if start_rate is None else np.ascontiguousarray(np.broadcast_to(start_rate, (n,)), dtype=float)
-    v1 = np.zeros(n) if end_rate is None else np.ascontiguousarray(np.broadcast_to(end_rate, (n,)), dtype=float)
+    v0 = np.zeros(n) if start_rate is None else np.array(np.broadcast_to(start_rate, (n,)), dtype=float)
+    v1 = np.zeros(n) if end_rate is None else np.array(np.broadcast_to(end_rate, (n,)), dtype=float)
     qd = np.empty_like(q)
     qdd = np.empty_like(q)
     spline_kernels.clamped_spline(t, q, v0, v1, qd, qdd)

@@ -123,19 +123,20 @@ def _record_loop_callees(robot: RobotModel) -> None:
 
 
 def signatures_path(part: str) -> Path:
-    """The file in the kernel cache that lists the kernels the compile part ``part`` compiled
-    (or loaded) for more than one signature on this CPU, written where the part was compiled."""
+    """The file in the kernel cache with the signatures of every kernel the compile part ``part``
+    compiled or loaded on this CPU, written where the part was compiled."""
     return CACHE_DIR / f"signatures-{part}-{cpu_tag()}"
 
 
 def _record_signatures(part: str) -> None:
-    """Write :func:`signatures_path`: ``{kernel: [signature, ...]}`` for every kernel with more
-    than one signature in this process, which has just compiled ``part`` (its dispatchers hold
-    every signature its kernels' callers asked for, nested calls included; a literal argument,
-    ``True`` or ``0``, is a signature of its own and a compilation more)."""
-    several = {k.py_func.__qualname__: [str(s) for s in k.signatures] for k in KERNELS if len(k.signatures) > 1}
+    """Write :func:`signatures_path`: ``{"module.kernel": [signature, ...]}`` of this process,
+    which has just compiled ``part``. A kernel compiled here lists what its callers asked for,
+    nested calls included; one loaded from the cache hides its callees, which the part that
+    compiled it lists. So in a fresh cache the parts' records together hold every signature
+    (a literal argument, ``True`` or ``0``, is a signature of its own and a compilation more)."""
+    held = {f"{k.py_func.__module__}.{k.py_func.__qualname__}": sorted(map(str, k.signatures)) for k in KERNELS}
     CACHE_DIR.mkdir(parents=True, exist_ok=True)
-    signatures_path(part).write_text(json.dumps(several, indent=1, sort_keys=True) + "\n")
+    signatures_path(part).write_text(json.dumps({k: v for k, v in held.items() if v}, indent=1, sort_keys=True) + "\n")
 
 
 def _tools(robot: RobotModel) -> None:
@@ -173,14 +174,16 @@ def warm_up(parts: Sequence[str] = tuple(PARTS), *, record: bool = False) -> flo
     helpers), then park the loaded kernels' linking modules
     (:func:`engine.kernels.jit.park_linking_modules`). Returns the seconds it took.
 
-    ``record``: for a part this process compiles, write :func:`_record_signatures` and, for the
-    step loop, :func:`_record_loop_callees` (:func:`compile_kernels`' parts do, each running one
-    part; another process may have called kernels from Python first, with other types)."""
+    ``record``: if this process compiles ``parts`` (one part: :func:`compile_kernels`' children),
+    write :func:`_record_signatures` and, for the step loop, :func:`_record_loop_callees`
+    (another process may have called kernels from Python first, with other types)."""
     unknown = set(parts) - set(PARTS)
     if unknown:
         raise ValueError(f"unknown kernel part(s) {sorted(unknown)}; the parts are {list(PARTS)}")
     start = time.perf_counter()
     robot = table1_robot()
+    if record and len(parts) != 1:
+        raise ValueError("record: one part per process (the records are per part)")
     for name in parts:
         PARTS[name](robot)
         if record and any(k.stats.cache_misses for k in KERNELS):

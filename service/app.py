@@ -95,12 +95,9 @@ class Kernels:
     rehearses a plan request (rolled back): liveness answers at once, readiness once the kernels
     are in (see :func:`engine.warm_up`), so the first request runs at the steady-state speed.
 
-    ``freeze_heap``: then, once ready, move every object the start-up made out of the cyclic garbage
-    collector's sight (:func:`gc.freeze`). They are about 240,000 (numba's, FastAPI's, pydantic's)
-    and all live as long as the process; a full collection walked them all, a pause of 100 to 400 ms
-    in a burst of plans (every few hundred requests), which stalled every request and ``/healthz``
-    with it. Only for a process of its own (``spacearm serve``): in a test process it would freeze
-    the tests' objects too."""
+    ``freeze_heap``: last, keep the start-up's objects out of full garbage collections
+    (:func:`gc.freeze`, see docs/service.md); only in a process of its own (``spacearm serve``),
+    not in one that holds tests."""
 
     def __init__(self, app: FastAPI, db: Database, settings: Settings, freeze_heap: bool = False) -> None:
         self.app = app
@@ -132,12 +129,12 @@ class Kernels:
         except Exception as exc:  # e.g. not migrated yet: /readyz reports the database itself
             log.info("request rehearsal skipped: %s: %s", type(exc).__name__, exc)
         finally:
+            if self.freeze_heap:
+                gc.collect()  # the start-up's garbage first: a frozen cycle is never freed
+                gc.freeze()
             park_linking_modules()  # and what the rehearsal freed goes back to the system
             self.ready.set()
             notify_ready("ready")
-        if self.freeze_heap:
-            gc.collect()  # the start-up's garbage first: a frozen cycle is never freed
-            gc.freeze()
 
     async def _visit_routers(self) -> None:
         """FastAPI prepares each router's routes on the first request that reaches it; send each

@@ -8,8 +8,13 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
+from numba import types
 
+from engine.executed import executed_trajectory
+from engine.kernels import spline
+from engine.kernels.jit import CACHE_DIR
 from engine.warmup import PARTS, loop_callees_path, signatures_path, warm_up
 
 SCRIPT = """
@@ -80,23 +85,36 @@ def test_the_loops_largest_callees_were_compiled_ahead_for_the_loops_own_types()
     warm_up()  # the cache is complete
     recorded = loop_callees_path()
     if not recorded.exists():
-        pytest.fail(f"{recorded} is missing: the step loop was not compiled by this version (`spacearm compile --force`)")
+        pytest.fail(f"{recorded} is missing: this version's step loop was not compiled in a fresh cache (delete {CACHE_DIR})")
     assert json.loads(recorded.read_text()) == [], recorded.read_text()
 
 
-#: Kernels compiled for two signatures on purpose: ``_complete`` completes the rows of the SVD's
-#: warm start (a whole array) and of its ``W`` (a column slice, numba's layout ``A``).
-SEVERAL_SIGNATURES = {"_complete"}
-
-
-@pytest.mark.parametrize("part", list(PARTS))
-def test_each_part_compiled_its_kernels_for_one_signature(part: str) -> None:
-    """A literal argument (``True``, ``0``) makes numba compile a kernel again for that literal:
-    callers pass runtime values (``np.bool_(True)``, ``np.int64(0)``). Each compile part recorded
-    the kernels it compiled or loaded for more than one signature, nested calls included."""
+def test_every_kernel_was_compiled_for_one_signature() -> None:
+    """A literal argument (``True``, ``0``) or a read-only array makes numba compile a kernel
+    again for that type: callers pass runtime values (``np.bool_(True)``, ``np.int64(0)``) and
+    writable arrays. The compile parts recorded the signatures their processes held; together,
+    in a fresh cache, every signature compiled."""
     warm_up()  # the cache is complete
-    recorded = signatures_path(part)
-    if not recorded.exists():
-        pytest.fail(f"{recorded} is missing: the {part} part was not compiled by this version (`spacearm compile --force`)")
-    several = json.loads(recorded.read_text())
-    assert set(several) <= SEVERAL_SIGNATURES, several
+    held: dict[str, set[str]] = {}
+    for part in PARTS:
+        recorded = signatures_path(part)
+        if not recorded.exists():
+            pytest.fail(f"{recorded} is missing: this version's kernels were not compiled in a fresh cache (delete {CACHE_DIR})")
+        for kernel, signatures in json.loads(recorded.read_text()).items():
+            held.setdefault(kernel, set()).update(signatures)
+    assert "engine.kernels.plan.simulate" in held
+    assert {k: sorted(v) for k, v in held.items() if len(v) > 1} == {}
+
+
+def test_read_only_inputs_compile_no_other_spline() -> None:
+    """A stored plan's arrays are read-only, and so is the end rate ``from_plan`` broadcasts: the
+    executed trajectory copies them, so it runs the spline compiled ahead instead of compiling
+    another one (for read-only arrays) at run time."""
+    warm_up()
+    t = np.linspace(0.0, 1.0, 5)
+    q = np.zeros((5, 6))
+    for array in (t, q):
+        array.setflags(write=False)
+    executed_trajectory(t, q, None, np.broadcast_to(0.1, (6,)))
+    arrays = [arg for signature in spline.clamped_spline.signatures for arg in signature if isinstance(arg, types.Array)]
+    assert arrays and all(arg.mutable for arg in arrays), spline.clamped_spline.signatures

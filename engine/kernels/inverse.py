@@ -173,7 +173,7 @@ def solve_many(method, params, J, xdot, qd, damping, sv):
     """Cold-started SVD and :func:`apply_inverse` for each member: ``params (B, P)``,
     ``J (B, p, n)``, ``xdot (B, p)``; writes ``qd (B, n)``, ``damping (B, m)``, ``sv (B, m)``."""
     n = J.shape[2]
-    refresh = n < 0  # False as a runtime bool: a literal False would compile another jacobi_svd
+    refresh = np.bool_(False)  # a runtime bool: a literal False would compile another jacobi_svd
     for b in range(J.shape[0]):
         buf = svd_buffers(n, J.shape[1])
         ok, _ = jacobi_svd(J[b], buf, refresh)

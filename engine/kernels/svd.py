@@ -73,7 +73,8 @@ def _orthonormalise(Xt):
             for r in range(Xt.shape[1]):
                 Xt[j, r] /= norm
         else:
-            _complete(Xt, j, True)
+            # a column slice, as W's rows are, and a runtime bool: one _complete for both callers
+            _complete(Xt[:, : Xt.shape[1]], j, np.bool_(True))
 
 
 @kernel
@@ -251,7 +252,7 @@ def jacobi_svd(J, buf, refresh):
     if missing:
         for col in range(c):
             if sq[col] <= 1e-290:
-                _complete(Wt, col, False)
+                _complete(Wt, col, np.bool_(False))
     Y = U if tall else V  # columns y_i = w_i / s_i
     Z = V if tall else U  # columns of X
     for col in range(c):
@@ -267,7 +268,7 @@ def svd_many(J, U, s, V):
     """Cold-started :func:`jacobi_svd` of each ``J[b] (p, n)``; ``U (B, p, m)``, ``s (B, m)``,
     ``V (B, n, m)``."""
     n = J.shape[2]
-    refresh = n < 0  # False as a runtime bool: a literal False would compile another jacobi_svd
+    refresh = np.bool_(False)  # a runtime bool: a literal False would compile another jacobi_svd
     for b in range(J.shape[0]):
         buf = svd_buffers(n, J.shape[1])
         jacobi_svd(J[b], buf, refresh)
