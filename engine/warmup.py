@@ -31,6 +31,7 @@ import numpy as np
 from numba import typeof, types
 
 from engine.executed import executed_motion, executed_trajectory
+from engine.geometry import capsule, distance, shape_from_dict
 from engine.inverses import make_inverse, method_names
 from engine.jacobian import generalized_jacobian
 from engine.kernels import dynamics as dynamics_kernels
@@ -142,8 +143,8 @@ def _record_signatures(part: str) -> None:
 def _tools(robot: RobotModel) -> None:
     """Everything but the step loop: the replay's integrators (on a still motion of three
     samples, the argument types of :func:`engine.replay.replay`) and the executed trajectory's
-    spline and integration, the figures' kinematics, every inverse on one GJM, and the SO(3)
-    helpers; first, the step loop's largest callees (:func:`_compile_loop_callees`)."""
+    spline and integration, the figures' kinematics and distances, every inverse on one GJM, and
+    the SO(3) helpers; first, the step loop's largest callees (:func:`_compile_loop_callees`)."""
     _compile_loop_callees(robot)
     t = np.array([0.0, 0.25, 0.5])
     q = np.repeat(Q0[None], 3, axis=0)
@@ -155,6 +156,7 @@ def _tools(robot: RobotModel) -> None:
     replay_kernels.evaluate_samples(robot.chain, q, qd, ys, *samples)
     executed_motion(robot, executed_trajectory(t, q), np.zeros(3), np.eye(3))  # a plan response's executed trajectory
     kinematics_batch(robot, q, np.repeat(np.eye(3)[None], 3, axis=0), np.zeros((3, 3)))  # the figures' arm
+    distance(shape_from_dict({"type": "sphere", "radius_m": 0.1}), capsule([1, 0, 0], [1, 0, 1], 0.1))  # the clearance figure
     J_g = generalized_jacobian(robot, State(Q0)).J_g
     for name in method_names():
         make_inverse(name).solve(J_g, np.ones(6))

@@ -14,7 +14,7 @@ from numba import types
 
 from engine.executed import executed_trajectory
 from engine.kernels import spline
-from engine.kernels.jit import CACHE_DIR
+from engine.kernels.jit import CACHE_DIR, KERNELS
 from engine.warmup import PARTS, loop_callees_path, signatures_path, warm_up
 
 SCRIPT = """
@@ -104,6 +104,24 @@ def test_every_kernel_was_compiled_for_one_signature() -> None:
             held.setdefault(kernel, set()).update(signatures)
     assert "engine.kernels.plan.simulate" in held
     assert {k: sorted(v) for k, v in held.items() if len(v) > 1} == {}
+
+
+#: Kernels no part compiles: no service request calls them (the library's, and the tests').
+NOT_WARMED = {
+    "engine.kernels.dynamics.inverse_dynamics_many",  # engine.dynamics.inverse_dynamics, plan_dynamics
+    "engine.kernels.qp.dense_qp",  # engine.qp.solve_qp
+    "engine.kernels.plan.base_attitude_step",  # tests
+}
+
+
+def test_the_parts_compile_every_kernel_the_service_calls() -> None:
+    """Every kernel but those inlined into their caller and :data:`NOT_WARMED` is in the parts'
+    records: none is left for a request to compile (the clearance figure's distances were)."""
+    held: set[str] = set()
+    for part in PARTS:
+        held.update(json.loads(signatures_path(part).read_text()))
+    names = {f"{k.py_func.__module__}.{k.py_func.__qualname__}" for k in KERNELS if k.targetoptions["inline"] != "always"}
+    assert names - held == NOT_WARMED
 
 
 def test_read_only_inputs_compile_no_other_spline() -> None:

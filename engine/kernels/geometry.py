@@ -142,11 +142,6 @@ def gjk_buffers():
 
 
 @kernel
-def _dot(u, v):
-    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
-
-
-@kernel
 def _keep(W, A, B, lam, idx, count):
     """Keep the simplex points ``idx[:count]`` (in that order) with their weights."""
     for k in range(count):

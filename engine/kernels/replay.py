@@ -209,14 +209,6 @@ def _rhs(ch, coef_k, t_k, t, y, dy, work):
 
 
 @kernel
-def _rms(x):
-    acc = 0.0
-    for v in x:
-        acc += v * v
-    return np.sqrt(acc / x.shape[0])
-
-
-@kernel
 def integrate(ch, t, q, qd, ys, rtol, atol):
     """Replay the plan ``t (N+1,)``, ``q (N+1, n)``, ``qd (N+1, n)`` (the joints move linearly,
     ``q_k + (t - t_k) qd_k``, over each step): ``ys[0]`` holds the start state, ``ys[k+1]``

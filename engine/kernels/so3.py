@@ -119,36 +119,6 @@ def rotation_angle(R):
     return 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), abs(w))
 
 
-@kernel
-def matmul3(A, B, out):
-    """``out = A B`` for 3x3 matrices (``out`` must not alias ``A`` or ``B``)."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
-
-
-@kernel
-def matmul3_bt(A, B, out):
-    """``out = A B^T`` for 3x3 matrices."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = A[i, 0] * B[j, 0] + A[i, 1] * B[j, 1] + A[i, 2] * B[j, 2]
-
-
-@kernel
-def matvec3(A, x, out):
-    """``out = A x``."""
-    for i in range(3):
-        out[i] = A[i, 0] * x[0] + A[i, 1] * x[1] + A[i, 2] * x[2]
-
-
-@kernel
-def matvec3_t(A, x, out):
-    """``out = A^T x``."""
-    for i in range(3):
-        out[i] = A[0, i] * x[0] + A[1, i] * x[1] + A[2, i] * x[2]
-
-
 # Loops over stacks, for the batched numpy wrappers.
 
 
