@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -40,6 +41,7 @@ from engine.kernels import plan as plan_kernels
 from engine.kernels import qp as qp_kernels
 from engine.kernels import replay as replay_kernels
 from engine.kernels import svd as svd_kernels
+from engine.kernels.cache import HERE as KERNELS_DIR
 from engine.kernels.cache import cpu_tag, marker_path
 from engine.kernels.jit import CACHE_DIR, KERNELS, park_linking_modules
 from engine.kinematics import State, forward_kinematics, kinematics_batch
@@ -233,7 +235,21 @@ def compile_kernels(on_progress: Callable[[Progress], None], *, every_s: float =
     seconds = time.monotonic() - start
     CACHE_DIR.mkdir(parents=True, exist_ok=True)
     marker_path(CACHE_DIR).write_text(f"compiled in {seconds:.1f} s\n")
+    remove_stale_caches()
     return seconds
+
+
+def remove_stale_caches() -> list[Path]:
+    """Delete the in-tree caches of earlier kernel sources (``engine/kernels/__pycache__/
+    numba-<hash>`` beside :data:`CACHE_DIR`): this tree can no longer run the code they hold, and
+    each is some 14 MiB. Caches elsewhere (``NUMBA_CACHE_DIR``, ``~/.cache``) may serve other
+    installs and are left alone. Returns the folders deleted."""
+    if CACHE_DIR.parent != KERNELS_DIR / "__pycache__":
+        return []
+    stale = [p for p in CACHE_DIR.parent.glob("numba-*") if p.is_dir() and p != CACHE_DIR]
+    for folder in stale:
+        shutil.rmtree(folder, ignore_errors=True)
+    return stale
 
 
 def _command(part: str) -> list[str]:

@@ -14,8 +14,10 @@ from numba import types
 
 from engine.executed import executed_trajectory
 from engine.kernels import spline
+from engine.kernels.cache import HERE as KERNELS_DIR
+from engine.kernels.cache import marker_path
 from engine.kernels.jit import CACHE_DIR, KERNELS
-from engine.warmup import PARTS, loop_callees_path, signatures_path, warm_up
+from engine.warmup import PARTS, compile_kernels, loop_callees_path, signatures_path, warm_up
 
 SCRIPT = """
 import json
@@ -136,3 +138,14 @@ def test_read_only_inputs_compile_no_other_spline() -> None:
     executed_trajectory(t, q, None, np.broadcast_to(0.1, (6,)))
     arrays = [arg for signature in spline.clamped_spline.signatures for arg in signature if isinstance(arg, types.Array)]
     assert arrays and all(arg.mutable for arg in arrays), spline.clamped_spline.signatures
+
+
+def test_compiling_removes_the_in_tree_caches_of_earlier_sources() -> None:
+    if CACHE_DIR.parent != KERNELS_DIR / "__pycache__":
+        pytest.skip(f"the kernel cache is not in the tree ({CACHE_DIR}): other installs may share it")
+    stale = CACHE_DIR.parent / "numba-0123456789abcdef"
+    (stale / "kernels").mkdir(parents=True, exist_ok=True)
+    (stale / "kernels" / "entry.nbi").write_bytes(b"old")
+    compile_kernels(lambda _: None)  # the cache is complete: the parts load, then the sweep
+    assert not stale.exists()
+    assert marker_path(CACHE_DIR).exists()
