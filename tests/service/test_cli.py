@@ -354,3 +354,25 @@ def test_compile_says_when_the_kernels_are_compiled_and_reports_progress() -> No
     assert messages[0].startswith("compiling the engine's kernels for this CPU into"), messages
     assert "compiling kernels: 2 of 2 parts done after" in messages[-2], messages
     assert re.fullmatch(r"engine kernels compiled in \d+ s", messages[-1]), messages
+
+
+def test_serve_freezes_the_start_up_heap(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``spacearm serve`` is a process of its own: it asks the app to freeze its start-up objects
+    (:class:`service.app.Kernels`); an app made any other way does not."""
+    import service.app
+    import service.cli
+    import service.infra.server
+    from service.run import GATE_FD
+
+    made: list[bool] = []
+
+    def create_app(settings: Settings, *, freeze_heap: bool = False) -> object:
+        made.append(freeze_heap)
+        return object()
+
+    monkeypatch.setattr(service.app, "create_app", create_app)
+    monkeypatch.setattr(service.infra.server, "serve", lambda *args: None)
+    monkeypatch.setattr(service.cli, "configure", lambda *args, **kwargs: None)  # the test process's logging stays
+    monkeypatch.delenv(GATE_FD, raising=False)
+    assert service.cli.main(["serve", "--port", str(free_port())]) == 0
+    assert made == [True]
