@@ -37,7 +37,6 @@ from engine.inverses import make_inverse, method_names
 from engine.jacobian import generalized_jacobian
 from engine.kernels import dynamics as dynamics_kernels
 from engine.kernels import geometry as geometry_kernels
-from engine.kernels import plan as plan_kernels
 from engine.kernels import qp as qp_kernels
 from engine.kernels import replay as replay_kernels
 from engine.kernels import svd as svd_kernels
@@ -109,20 +108,9 @@ def _compile_loop_callees(robot: RobotModel) -> None:
         kernel.compile(argument_types)
 
 
-def loop_callees_path() -> Path:
-    """The file in the kernel cache that says whether :func:`loop_callees` lists the types the
-    step loop asked for, on this CPU (written where the loop was compiled)."""
-    return CACHE_DIR / f"loop-callees-{cpu_tag()}"
-
-
-def _record_loop_callees(robot: RobotModel) -> None:
-    """In a compile part that has just compiled the step loop, whose dispatchers of the loop's
-    callees hold exactly the types the loop asked for (compiled or loaded from the cache): write
-    to :func:`loop_callees_path` the callees for which :func:`loop_callees` lists other types
-    (``[]``: none; the tools part compiled each ahead for nothing otherwise)."""
-    wrong = [kernel.py_func.__name__ for kernel, types_ in loop_callees(robot) if kernel.signatures != [types_]]
-    CACHE_DIR.mkdir(parents=True, exist_ok=True)
-    loop_callees_path().write_text(json.dumps(wrong) + "\n")
+def kernel_name(kernel: Any) -> str:
+    """A kernel's name in the records: ``module.qualname`` (two modules may use one name)."""
+    return f"{kernel.py_func.__module__}.{kernel.py_func.__qualname__}"
 
 
 def signatures_path(part: str) -> Path:
@@ -137,7 +125,7 @@ def _record_signatures(part: str) -> None:
     nested calls included; one loaded from the cache hides its callees, which the part that
     compiled it lists. So in a fresh cache the parts' records together hold every signature
     (a literal argument, ``True`` or ``0``, is a signature of its own and a compilation more)."""
-    held = {f"{k.py_func.__module__}.{k.py_func.__qualname__}": sorted(map(str, k.signatures)) for k in KERNELS}
+    held = {kernel_name(k): sorted(map(str, k.signatures)) for k in KERNELS}
     CACHE_DIR.mkdir(parents=True, exist_ok=True)
     signatures_path(part).write_text(json.dumps({k: v for k, v in held.items() if v}, indent=1, sort_keys=True) + "\n")
 
@@ -179,21 +167,19 @@ def warm_up(parts: Sequence[str] = tuple(PARTS), *, record: bool = False) -> flo
     (:func:`engine.kernels.jit.park_linking_modules`). Returns the seconds it took.
 
     ``record``: if this process compiles ``parts`` (one part: :func:`compile_kernels`' children),
-    write :func:`_record_signatures` and, for the step loop, :func:`_record_loop_callees`
-    (another process may have called kernels from Python first, with other types)."""
+    write :func:`_record_signatures` (another process may have called kernels from Python first,
+    with other types)."""
     unknown = set(parts) - set(PARTS)
     if unknown:
         raise ValueError(f"unknown kernel part(s) {sorted(unknown)}; the parts are {list(PARTS)}")
-    start = time.perf_counter()
-    robot = table1_robot()
     if record and len(parts) != 1:
         raise ValueError("record: one part per process (the records are per part)")
+    start = time.perf_counter()
+    robot = table1_robot()
     for name in parts:
         PARTS[name](robot)
         if record and any(k.stats.cache_misses for k in KERNELS):
             _record_signatures(name)
-        if record and name == "planner" and plan_kernels.simulate.stats.cache_misses:
-            _record_loop_callees(robot)
     if set(parts) == set(PARTS):
         # the replay as the API runs it, from a real plan (its arguments' types as callers pass them)
         replay(robot, plan(robot, _task(robot), make_inverse("adaptive")))

@@ -17,7 +17,8 @@ from engine.kernels import spline
 from engine.kernels.cache import HERE as KERNELS_DIR
 from engine.kernels.cache import marker_path
 from engine.kernels.jit import CACHE_DIR, KERNELS
-from engine.warmup import PARTS, compile_kernels, loop_callees_path, signatures_path, warm_up
+from engine.model import table1_robot
+from engine.warmup import PARTS, compile_kernels, kernel_name, loop_callees, signatures_path, warm_up
 
 SCRIPT = """
 import json
@@ -79,16 +80,25 @@ def test_a_parked_kernel_links_again_into_a_new_compilation() -> None:
     assert library._shared_module is not None  # parsed again for the link
 
 
+def _records() -> dict[str, dict[str, list[str]]]:
+    """The compile parts' signature records (``engine.warmup.signatures_path``), by part."""
+    warm_up()  # the cache is complete
+    records = {}
+    for part in PARTS:
+        recorded = signatures_path(part)
+        if not recorded.exists():
+            pytest.fail(f"{recorded} is missing: this version's kernels were not compiled in a fresh cache (delete {CACHE_DIR})")
+        records[part] = json.loads(recorded.read_text())
+    return records
+
+
 def test_the_loops_largest_callees_were_compiled_ahead_for_the_loops_own_types() -> None:
     """``engine.warmup.loop_callees`` gives the argument types the step loop gives its largest
-    callees, which the tools part compiles ahead. The compile part that compiled the loop recorded
-    the callees whose types the loop asked for were other than listed (the loop then compiled
-    its own beside them)."""
-    warm_up()  # the cache is complete
-    recorded = loop_callees_path()
-    if not recorded.exists():
-        pytest.fail(f"{recorded} is missing: this version's step loop was not compiled in a fresh cache (delete {CACHE_DIR})")
-    assert json.loads(recorded.read_text()) == [], recorded.read_text()
+    callees, which the tools part compiles ahead: the part that compiled the loop held exactly
+    those (other types, and the loop would have compiled its own beside them)."""
+    planner = _records()["planner"]
+    for kernel, argument_types in loop_callees(table1_robot()):
+        assert planner.get(kernel_name(kernel)) == [str(argument_types)], kernel_name(kernel)
 
 
 def test_every_kernel_was_compiled_for_one_signature() -> None:
@@ -96,13 +106,9 @@ def test_every_kernel_was_compiled_for_one_signature() -> None:
     again for that type: callers pass runtime values (``np.bool_(True)``, ``np.int64(0)``) and
     writable arrays. The compile parts recorded the signatures their processes held; together,
     in a fresh cache, every signature compiled."""
-    warm_up()  # the cache is complete
     held: dict[str, set[str]] = {}
-    for part in PARTS:
-        recorded = signatures_path(part)
-        if not recorded.exists():
-            pytest.fail(f"{recorded} is missing: this version's kernels were not compiled in a fresh cache (delete {CACHE_DIR})")
-        for kernel, signatures in json.loads(recorded.read_text()).items():
+    for record in _records().values():
+        for kernel, signatures in record.items():
             held.setdefault(kernel, set()).update(signatures)
     assert "engine.kernels.plan.simulate" in held
     assert {k: sorted(v) for k, v in held.items() if len(v) > 1} == {}
@@ -119,10 +125,8 @@ NOT_WARMED = {
 def test_the_parts_compile_every_kernel_the_service_calls() -> None:
     """Every kernel but those inlined into their caller and :data:`NOT_WARMED` is in the parts'
     records: none is left for a request to compile (the clearance figure's distances were)."""
-    held: set[str] = set()
-    for part in PARTS:
-        held.update(json.loads(signatures_path(part).read_text()))
-    names = {f"{k.py_func.__module__}.{k.py_func.__qualname__}" for k in KERNELS if k.targetoptions["inline"] != "always"}
+    held = {kernel for record in _records().values() for kernel in record}
+    names = {kernel_name(k) for k in KERNELS if k.targetoptions["inline"] != "always"}
     assert names - held == NOT_WARMED
 
 
