@@ -80,22 +80,24 @@ def loop_callees(robot: RobotModel) -> list[tuple[Any, tuple[Any, ...]]]:
     """The step loop's largest callees, in the order its compilation gets to them, each with the
     argument types (numba's) the loop gives it: the clearance check's distance (GJK), the SVD, the
     bounded inverse's QP and the executed trajectory's dynamics, about 20 s of the planner part's
-    compilation (:func:`_compile_loop_callees`)."""
+    compilation (:func:`_compile_loop_callees`). The buffers that give the types are made by the
+    kernels' Python functions: compiling them first would delay the callees by a second and a half,
+    and the planner part reaches the last of them about when the tools part has compiled it."""
     n = robot.n_joints
     array1, array2 = typeof(np.zeros(1)), typeof(np.zeros((1, 1)))
     return [
-        (geometry_kernels.shape_distance, (array1, array1, array2, typeof(geometry_kernels.gjk_buffers()), array2)),
-        (svd_kernels.jacobi_svd, (array2, typeof(svd_kernels.svd_buffers(n, 6)), types.boolean)),
+        (geometry_kernels.shape_distance, (array1, array1, array2, typeof(geometry_kernels.gjk_buffers.py_func()), array2)),
+        (svd_kernels.jacobi_svd, (array2, typeof(svd_kernels.svd_buffers.py_func(n, 6)), types.boolean)),
         (
             qp_kernels.dls_qp,
             # the loop passes max_iter as the constant 0, which numba types as the literal
             (array2, array1, array2, array1, types.float64, array1, array1, array1, array2, array1, types.literal(0))
-            + (typeof(qp_kernels.qp_buffers(n, 0)),),
+            + (typeof(qp_kernels.qp_buffers.py_func(n, 0)),),
         ),
         (
             dynamics_kernels.trajectory_dynamics,
             (typeof(robot.chain), types.float64, types.int64, array1)
-            + (typeof(dynamics_kernels.trajectory_buffers(3, n, 1)), types.boolean),
+            + (typeof(dynamics_kernels.trajectory_buffers.py_func(3, n, 1)), types.boolean),
         ),
     ]
 

@@ -408,408 +408,6 @@ def same_chain(a, b):
 
 
 @kernel(inline=True)
-def _plan_one(
-    ch,
-    plant,
-    q0,
-    twists,
-    p_des,
-    A_des,
-    dt,
-    gain,
-    method,
-    params,
-    rows,
-    objective,
-    objective_gain,
-    centre,
-    speed_limit,
-    dynamics,
-    geo,
-    given,
-    record,
-    trace,
-    dyn,
-    metrics,
-):
-    """Plan one parameter set. ``twists (N+1, 6)`` commanded path twists and ``p_des (N+1, 3)``,
-    ``A_des (N+1, 3, 3)`` desired poses (world); ``gain`` the pose feedback gain (1/s);
-    ``rows`` = 6 tracks the pose, 3 the position only; ``objective``, ``objective_gain`` and
-    ``centre (n,)`` the secondary objective (:mod:`engine.kernels.redundancy`);
-    ``speed_limit (n,)`` each joint's speed limit (rad/s or m/s; the ``bounded`` inverse's box);
-    ``geo`` the collision geometry ``(shapes, vertices, pairs, (clearance, influence distance,
-    avoidance gain))`` (no pairs: none).
-
-    ``ch`` is the controller's model and ``plant`` the robot that moves (the same chain for a plan;
-    a sampled robot of :mod:`engine.uncertainty` for a closed loop under uncertainty): the
-    inverse uses the controller's GJM at the measured joints and carrier attitude, while the
-    carrier turns by the plant's momentum balance and the pose error, clearance and torques are
-    the plant's. ``given (N+1, n)`` (or ``(0, n)``: none) replaces the inverse's joint rates (an
-    open-loop replay of a plan's joint motion).
-
-    ``metrics (N_METRICS,)`` is always written. With ``record``, ``trace`` (a tuple of
-    ``q (N+1, n)``, ``qd``, ``base_p (N+1, 3)``, ``base_A (N+1, 3, 3)``, ``ee_p``, ``ee_A``,
-    ``sv (N+1, m)``, ``det (N+1,)``, ``damping (N+1, m)``, ``pos_err (N+1,)``, ``att_err``,
-    ``clearance (N+1,)`` the smallest distance of any pair, ``clearance_pair (N+1,)`` its pair)
-    receives every sample; samples after a divergence are NaN. With ``dynamics``, ``dyn``
-    (:func:`engine.kernels.dynamics.trajectory_buffers` of ``N+1`` samples, with ``N+1`` rows
-    when ``record``, else 1) receives the executed trajectory's accelerations, torques and mount
-    wrench of a finite plan (NaN otherwise), and their peaks go into ``metrics``.
-    """
-    tr_q, tr_qd, tr_bp, tr_bA, tr_ep, tr_eA, tr_sv, tr_det, tr_damp, tr_perr, tr_aerr, tr_clear, tr_cpair = trace
-    dyn_q = dyn[1]
-    n = q0.shape[0]
-    m = min(rows, n)
-    N = twists.shape[0] - 1
-    eye = np.eye(3)
-    zero = np.zeros(3)
-    kin = kinematics_buffers(n)  # the plant's (the controller's too when they are the same)
-    g = gjm_buffers(n)
-    separate = not same_chain(ch, plant)
-    kin_c = kin
-    g_c = g
-    if separate:
-        kin_c = kinematics_buffers(n)
-        g_c = gjm_buffers(n)
-    replaying = given.shape[0] > 0
-    kin_m = kinematics_buffers(n)
-    g_m = gjm_buffers(n)
-    sv = svd_buffers(n, rows)
-    q = q0.copy()
-    q_next = np.empty(n)
-    qd = np.empty(n)
-    damping = np.empty(m)
-    peak = np.zeros(n)
-    work = advance_buffers(n)
-    null_work = (np.empty((3, n)), np.empty((3, 6)), np.empty(6), np.empty(n), np.empty((3, 3)), np.empty(3), np.empty(3))
-    redundant = objective != NONE and n > m
-    A0 = np.eye(3)
-    ee_p = np.empty(3)
-    ee_A = np.empty((3, 3))
-    base_p = np.empty(3)
-    D = np.empty((3, 3))
-    dphi = np.empty(3)
-    xdot_w = np.empty(6)
-    xdot_b = np.empty(6)
-    inv_scratch = np.empty((2, 6))
-    det_scratch = np.empty((6, 6))
-    bounded = method == BOUNDED
-    shift = np.zeros(n)
-    box = np.empty((2, n))
-    shapes, vertices, pairs, geo_set = geo
-    n_pairs = pairs.shape[0]
-    checking = n_pairs > 0
-    clearance = geo_set[0]
-    influence = geo_set[1]
-    avoid_gain = geo_set[2]
-    avoid_rows = checking and bounded
-    avoid_null = checking and redundant and objective == CLEARANCE
-    cbuf = clearance_buffers(n, shapes.shape[0], n_pairs)
-    cwork = clearance_work(plant, n)
-    slide = cwork[7]
-    stats = cbuf[9]
-    reset_stats(stats)
-    cbuf[5][:] = 0.0
-    speed_now = np.empty(n_pairs)
-    q_prev = np.empty(n)
-    qd_prev = np.empty(n)
-    A_prev = np.empty((3, 3))
-    m_rows = 0
-    qp_buf = qp_buffers(n, n_pairs)
-
-    kinematics(plant, q, eye, zero, np.bool_(True), kin)
-    gjm(plant, kin, g)
-    if separate:
-        kinematics(ch, q, eye, zero, np.bool_(True), kin_c)
-        gjm(ch, kin_c, g_c)
-    _, com_b, _, _, ee_p_b, ee_A_b = kin
-    J_b = g_c[0] if rows == 6 else g_c[0][:3]  # the tracked rows of the GJM (a view: gjm writes in place)
-    com_w = np.empty(3)
-    for r in range(3):
-        com_w[r] = -com_b[0, r]  # the base starts at the world origin with the identity attitude
-
-    pos_max = 0.0
-    att_max = 0.0
-    cpl_max = 0.0
-    pos_sq = 0.0
-    att_sq = 0.0
-    cpl_sq = 0.0
-    pos_e = 0.0
-    att_e = 0.0
-    cpl_e = 0.0
-    min_sigma = np.inf
-    t_min_sigma = np.nan
-    min_det = np.inf
-    t_min_det = np.nan
-    limit_joint = -1
-    t_limit = np.nan
-    limit_excess = 0.0
-    rot_key = 0.0
-    finite = True
-    t_div = np.nan
-    last = N
-    for k in range(N + 1):
-        t_k = k * dt
-        # World pose: A_0 times the base-frame pose, shifted by the fixed system CoM.
-        for r in range(3):
-            base_p[r] = com_w[r] + A0[r, 0] * com_b[0, 0] + A0[r, 1] * com_b[0, 1] + A0[r, 2] * com_b[0, 2]
-            ee_p[r] = com_w[r] + A0[r, 0] * ee_p_b[0] + A0[r, 1] * ee_p_b[1] + A0[r, 2] * ee_p_b[2]
-            for c in range(3):
-                ee_A[r, c] = A0[r, 0] * ee_A_b[0, c] + A0[r, 1] * ee_A_b[1, c] + A0[r, 2] * ee_A_b[2, c]
-        # Tracking errors: dp = p - p_d, dphi = log(A A_d^T) (world axes).
-        for r in range(3):
-            for c in range(3):
-                D[r, c] = ee_A[r, 0] * A_des[k, c, 0] + ee_A[r, 1] * A_des[k, c, 1] + ee_A[r, 2] * A_des[k, c, 2]
-        log_so3(D, dphi)
-        sq_p = 0.0
-        sq_a = 0.0
-        sq_c = 0.0
-        for r in range(3):
-            dp = ee_p[r] - p_des[k, r]
-            sq_p += dp * dp
-            sq_a += dphi[r] * dphi[r]
-            sq_c += (dp * dphi[r]) * (dp * dphi[r])
-            xdot_w[r] = twists[k, r] + gain * (-dp)
-            xdot_w[r + 3] = twists[k, r + 3] + gain * (-dphi[r])
-        pos_e = np.sqrt(sq_p)
-        att_e = np.sqrt(sq_a)
-        cpl_e = np.sqrt(sq_c)
-        pos_max = max(pos_max, pos_e)
-        att_max = max(att_max, att_e)
-        cpl_max = max(cpl_max, cpl_e)
-        pos_sq += pos_e * pos_e
-        att_sq += att_e * att_e
-        cpl_sq += cpl_e * cpl_e
-        # The carrier's rotation from its start, tracked as 3 - trace A_0 = 4 sin^2(angle / 2)
-        # (increasing in the angle; converted once at the end).
-        rot_key = max(rot_key, 3.0 - (A0[0, 0] + A0[1, 1] + A0[2, 2]))
-        for j in range(n):
-            excess = max(ch.joints[j, LOWER] - q[j], q[j] - ch.joints[j, UPPER])
-            if excess > 0.0:
-                if limit_joint < 0:
-                    limit_joint = j
-                    t_limit = t_k
-                if j == limit_joint:
-                    limit_excess = max(limit_excess, excess)
-        if checking:
-            pose_all(shapes, kin[0], kin[1], A0, com_w, cbuf[0])
-            prev_dist, prev_speed, step_speed = cbuf[4], cbuf[5], cbuf[14]
-            joint_reach(cbuf[0], slide, kin, cbuf[15])
-            if k > 0:  # the speed bound of the step that just ended: its rates at either end
-                pair_speeds(cbuf[0], pairs, cbuf[15], g[1], qd_prev, speed_now)
-                for p in range(n_pairs):
-                    step_speed[p] = max(prev_speed[p], speed_now[p])
-            # exact distances for the pairs that may be the smallest (of the sample when the trace
-            # is kept, else of the plan), that constrain the step, or that the check between
-            # samples may need; lower bounds for the others
-            cutoff = max(stats[MIN_D], influence if (avoid_rows or avoid_null) else -np.inf)
-            best, best_pair = sample_distances(pairs, vertices, cutoff, clearance, dt, k == 0, record, cbuf)
-            if record:
-                tr_clear[k] = best
-                tr_cpair[k] = best_pair
-            dist, exact = cbuf[1], cbuf[2]
-            for p in range(n_pairs):
-                if exact[p] != 0.0:
-                    note_distance(stats, dist[p], t_k, p, clearance)
-            if k > 0:  # the step that just ended, between samples
-                for p in range(n_pairs):
-                    # (the call only where the Lipschitz bound cannot tell: it takes the buffers)
-                    if (
-                        prev_dist[p] >= clearance
-                        and dist[p] >= clearance
-                        and (0.5 * (prev_dist[p] + dist[p] - step_speed[p] * dt) < clearance)
-                    ):
-                        check_interval(
-                            plant,
-                            shapes,
-                            vertices,
-                            pairs[p, 0],
-                            pairs[p, 1],
-                            p,
-                            t_k - dt,
-                            dt,
-                            q_prev,
-                            qd_prev,
-                            A_prev,
-                            com_w,
-                            prev_dist[p],
-                            dist[p],
-                            step_speed[p],
-                            clearance,
-                            cbuf,
-                            cwork,
-                        )
-            if avoid_rows:
-                m_rows = avoidance_rows(cbuf[0], pairs, cbuf, slide, kin, g_c[1], influence, clearance, avoid_gain, dt)
-        for r in range(3):
-            xdot_b[r] = A0[0, r] * xdot_w[0] + A0[1, r] * xdot_w[1] + A0[2, r] * xdot_w[2]
-            xdot_b[r + 3] = A0[0, r] * xdot_w[3] + A0[1, r] * xdot_w[4] + A0[2, r] * xdot_w[5]
-        ok, _ = jacobi_svd(J_b, sv, k % REFRESH_EVERY == 0)
-        s = sv[2]
-        if replaying:
-            ok = True
-            for j in range(n):
-                qd[j] = given[k, j]
-                ok = ok and np.isfinite(qd[j])
-            damping[:] = np.nan
-        elif ok:
-            apply_inverse(method, params, J_b, sv[1], s, sv[3], xdot_b, qd, damping, inv_scratch)
-            if redundant:
-                if bounded:
-                    for j in range(n):
-                        shift[j] = qd[j]
-                if avoid_null:
-                    clearance_push(cbuf[0], pairs, cbuf, slide, kin, g_c[1], influence, objective_gain, null_work[3])
-                elif objective == CLEARANCE:
-                    null_work[3][:] = 0.0  # no geometry: nothing to push apart
-                _secondary(objective, objective_gain, sv, g_c, q, centre, qd, null_work)
-                if bounded:
-                    for j in range(n):
-                        shift[j] = qd[j] - shift[j]
-            if bounded:
-                ok = bound_rates(
-                    ch,
-                    q,
-                    dt,
-                    speed_limit,
-                    sv[1],
-                    s,
-                    sv[3],
-                    damping,
-                    params[0],
-                    xdot_b,
-                    qd,
-                    shift,
-                    box,
-                    qp_buf,
-                    cbuf[6],
-                    cbuf[7],
-                    m_rows,
-                    speed_now,
-                )
-            for j in range(n):
-                if not np.isfinite(qd[j]):
-                    ok = False
-        else:
-            qd[:] = np.nan
-            damping[:] = np.nan
-        ok = ok and np.isfinite(pos_e) and np.isfinite(att_e)
-        det = np.nan
-        if n == rows and np.isfinite(s[0]):
-            det = det6(J_b, det_scratch) if rows == 6 else det3(J_b)
-        if dynamics:
-            for j in range(n):
-                dyn_q[k, j] = q[j]
-        if record:
-            for j in range(n):
-                tr_q[k, j] = q[j]
-                tr_qd[k, j] = qd[j]
-            for r in range(3):
-                tr_bp[k, r] = base_p[r]
-                tr_ep[k, r] = ee_p[r]
-                for c in range(3):
-                    tr_bA[k, r, c] = A0[r, c]
-                    tr_eA[k, r, c] = ee_A[r, c]
-            for i in range(m):
-                tr_sv[k, i] = s[i]
-                tr_damp[k, i] = damping[i]
-            tr_det[k] = det
-            tr_perr[k] = pos_e
-            tr_aerr[k] = att_e
-        for j in range(n):
-            v = abs(qd[j])
-            if not v <= peak[j]:  # NaN counts as exceeding
-                peak[j] = v if np.isfinite(v) else np.inf
-        if s[m - 1] < min_sigma:
-            min_sigma = s[m - 1]
-            t_min_sigma = t_k
-        if abs(det) < min_det:
-            min_det = abs(det)
-            t_min_det = t_k
-        if not ok:
-            finite = False
-            t_div = t_k
-            last = k
-            break
-        if k == N:
-            break
-        if checking:  # what the check of the coming step needs from its start
-            pair_speeds(cbuf[0], pairs, cbuf[15], g[1], qd, cbuf[5])
-            for p in range(n_pairs):
-                cbuf[4][p] = cbuf[1][p]
-            for j in range(n):
-                q_prev[j] = q[j]
-                qd_prev[j] = qd[j]
-            for r in range(3):
-                for c in range(3):
-                    A_prev[r, c] = A0[r, c]
-        # Joints: the paper's explicit update. Base attitude: Magnus along the joint line.
-        advance(plant, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work)
-        for j in range(n):
-            q[j] = q_next[j]
-        if separate:
-            kinematics(ch, q, eye, zero, np.bool_(True), kin_c)
-            gjm(ch, kin_c, g_c)
-        _, com_b, _, _, ee_p_b, ee_A_b = kin
-
-    if record:
-        for k in range(last + 1, N + 1):
-            tr_q[k] = np.nan
-            tr_qd[k] = np.nan
-            tr_bp[k] = np.nan
-            tr_bA[k] = np.nan
-            tr_ep[k] = np.nan
-            tr_eA[k] = np.nan
-            tr_sv[k] = np.nan
-            tr_det[k] = np.nan
-            tr_damp[k] = np.nan
-            tr_perr[k] = np.nan
-            tr_aerr[k] = np.nan
-            tr_clear[k] = np.nan
-            tr_cpair[k] = -1.0
-    count = N + 1
-    if finite:
-        metrics[POS_MAX] = pos_max
-        metrics[POS_RMS] = np.sqrt(pos_sq / count)
-        metrics[POS_FINAL] = pos_e
-        metrics[ATT_MAX] = att_max
-        metrics[ATT_RMS] = np.sqrt(att_sq / count)
-        metrics[ATT_FINAL] = att_e
-        metrics[CPL_MAX] = cpl_max
-        metrics[CPL_RMS] = np.sqrt(cpl_sq / count)
-        metrics[CPL_FINAL] = cpl_e
-        metrics[BASE_ROT_MAX] = 2.0 * np.arcsin(min(1.0, np.sqrt(max(rot_key, 0.0) / 4.0)))
-        metrics[BASE_ROT_FINAL] = rotation_angle(A0)
-    else:
-        for i in range(CPL_FINAL + 1):
-            metrics[i] = np.nan
-        metrics[BASE_ROT_MAX] = np.nan
-        metrics[BASE_ROT_FINAL] = np.nan
-    best, best_lin = fastest_joints(ch.joints, peak)
-    metrics[MAX_SPEED] = peak[best] if best >= 0 else 0.0
-    metrics[MAX_SPEED_JOINT] = best
-    metrics[MAX_LIN_SPEED] = peak[best_lin] if best_lin >= 0 else 0.0
-    metrics[MAX_LIN_SPEED_JOINT] = best_lin
-    metrics[MIN_SIGMA] = min_sigma
-    metrics[T_MIN_SIGMA] = t_min_sigma
-    metrics[MIN_DET] = min_det if n == rows else np.nan
-    metrics[T_MIN_DET] = t_min_det if n == rows else np.nan
-    metrics[FINITE] = 1.0 if finite else 0.0
-    metrics[T_DIVERGED] = t_div
-    metrics[LIMIT_JOINT] = limit_joint
-    metrics[T_LIMIT] = t_limit
-    metrics[LIMIT_EXCESS] = limit_excess if limit_joint >= 0 else np.nan
-    metrics[MIN_CLEARANCE] = stats[MIN_D] if checking else np.nan
-    metrics[T_MIN_CLEARANCE] = stats[T_MIN_D]
-    metrics[CLEARANCE_PAIR] = stats[MIN_PAIR]
-    metrics[COLLISION_PAIR] = stats[HIT_PAIR]
-    metrics[T_COLLISION] = stats[T_HIT]
-    metrics[COLLISION_DISTANCE] = stats[HIT_D]
-    metrics[GEOMETRY] = 1.0 if checking else 0.0
-    _dynamics_metrics(plant, dt, N, finite and dynamics, qd, dyn, record, metrics)
-
-
-@kernel(inline=True)
 def _dynamics_metrics(ch, dt, N, run, end_rate, dyn, record, metrics):
     """The executed trajectory's dynamics of a finite plan (``run``) into ``dyn`` and their
     peaks into ``metrics``; without ``run`` the recorded rows are NaN and the peaks unknown."""
@@ -868,14 +466,36 @@ def simulate(
     out,
 ):
     """Plan the parameter sets ``params[b] (B, P)`` for ``b`` in ``[start, stop)`` into their
-    metrics rows ``out[b] (N_METRICS,)`` (:func:`_plan_one` has the arguments). The one step
-    loop of the engine: a single plan is a range of one.
+    metrics rows ``out[b] (N_METRICS,)``. The one step loop of the engine: a single plan is a range
+    of one. (One function, not a loop over an inlined plan-one kernel: numba copies an inlined
+    function's IR block by block, each copy with the whole scope, 4 s of a cold compilation.)
 
-    ``trace`` and ``dyn``: the samples of the range's one plan, kept (``N+1`` rows; see
-    :func:`_plan_one`); or arrays of no rows (``engine.planner._no_samples``): only metrics are
-    kept, and memory does not grow with the number of steps, except with ``dynamics`` (the
-    effort peaks), whose spline needs the joint samples of one plan at a time (``3 (N+1) n``
-    floats, reused by the plans of the range; the kernel's own unless ``dyn`` has them)."""
+    ``twists (N+1, 6)`` commanded path twists and ``p_des (N+1, 3)``, ``A_des (N+1, 3, 3)``
+    desired poses (world); ``gain`` the pose feedback gain (1/s); ``rows`` = 6 tracks the pose, 3
+    the position only; ``objective``, ``objective_gain`` and ``centre (n,)`` the secondary
+    objective (:mod:`engine.kernels.redundancy`); ``speed_limit (n,)`` each joint's speed limit
+    (rad/s or m/s; the ``bounded`` inverse's box); ``geo`` the collision geometry ``(shapes,
+    vertices, pairs, (clearance, influence distance, avoidance gain))`` (no pairs: none).
+
+    ``ch`` is the controller's model and ``plant`` the robot that moves (the same chain for a plan;
+    a sampled robot of :mod:`engine.uncertainty` for a closed loop under uncertainty): the
+    inverse uses the controller's GJM at the measured joints and carrier attitude, while the
+    carrier turns by the plant's momentum balance and the pose error, clearance and torques are
+    the plant's. ``given (N+1, n)`` (or ``(0, n)``: none) replaces the inverse's joint rates (an
+    open-loop replay of a plan's joint motion).
+
+    ``trace`` and ``dyn``: the samples of the range's one plan, kept, or arrays of no rows
+    (``engine.planner._no_samples``): only metrics are kept, and memory does not grow with the
+    number of steps, except with ``dynamics`` (the effort peaks), whose spline needs the joint
+    samples of one plan at a time (``3 (N+1) n`` floats, reused by the plans of the range; the
+    kernel's own unless ``dyn`` has them). A kept ``trace`` is a tuple of ``q (N+1, n)``, ``qd``,
+    ``base_p (N+1, 3)``, ``base_A (N+1, 3, 3)``, ``ee_p``, ``ee_A``, ``sv (N+1, m)``, ``det
+    (N+1,)``, ``damping (N+1, m)``, ``pos_err (N+1,)``, ``att_err``, ``clearance (N+1,)`` the
+    smallest distance of any pair, ``clearance_pair (N+1,)`` its pair; it receives every sample,
+    and samples after a divergence are NaN. With ``dynamics``, ``dyn``
+    (:func:`engine.kernels.dynamics.trajectory_buffers` of ``N+1`` samples, with ``N+1`` rows
+    when the trace is kept, else 1) receives the executed trajectory's accelerations, torques and
+    mount wrench of a finite plan (NaN otherwise), and their peaks go into the metrics."""
     n = q0.shape[0]
     samples = twists.shape[0]
     record = trace[0].shape[0] > 0
@@ -887,27 +507,355 @@ def simulate(
     elif dynamics and dyn[1].shape[0] < samples:
         raise ValueError("the dynamics buffers hold fewer than the plan's N+1 samples")
     for b in range(start, stop):
-        _plan_one(
-            ch,
-            plant,
-            q0,
-            twists,
-            p_des,
-            A_des,
-            dt,
-            gain,
-            method,
-            params[b],
-            rows,
-            objective,
-            objective_gain,
-            centre,
-            speed_limit,
-            dynamics,
-            geo,
-            given,
-            record,
-            trace,
-            dyn,
-            out[b],
-        )
+        params_b = params[b]
+        metrics = out[b]
+        tr_q, tr_qd, tr_bp, tr_bA, tr_ep, tr_eA, tr_sv, tr_det, tr_damp, tr_perr, tr_aerr, tr_clear, tr_cpair = trace
+        dyn_q = dyn[1]
+        m = min(rows, n)
+        N = twists.shape[0] - 1
+        eye = np.eye(3)
+        zero = np.zeros(3)
+        kin = kinematics_buffers(n)  # the plant's (the controller's too when they are the same)
+        g = gjm_buffers(n)
+        separate = not same_chain(ch, plant)
+        kin_c = kin
+        g_c = g
+        if separate:
+            kin_c = kinematics_buffers(n)
+            g_c = gjm_buffers(n)
+        replaying = given.shape[0] > 0
+        kin_m = kinematics_buffers(n)
+        g_m = gjm_buffers(n)
+        sv = svd_buffers(n, rows)
+        q = q0.copy()
+        q_next = np.empty(n)
+        qd = np.empty(n)
+        damping = np.empty(m)
+        peak = np.zeros(n)
+        work = advance_buffers(n)
+        null_work = (np.empty((3, n)), np.empty((3, 6)), np.empty(6), np.empty(n), np.empty((3, 3)), np.empty(3), np.empty(3))
+        redundant = objective != NONE and n > m
+        A0 = np.eye(3)
+        ee_p = np.empty(3)
+        ee_A = np.empty((3, 3))
+        base_p = np.empty(3)
+        D = np.empty((3, 3))
+        dphi = np.empty(3)
+        xdot_w = np.empty(6)
+        xdot_b = np.empty(6)
+        inv_scratch = np.empty((2, 6))
+        det_scratch = np.empty((6, 6))
+        bounded = method == BOUNDED
+        shift = np.zeros(n)
+        box = np.empty((2, n))
+        shapes, vertices, pairs, geo_set = geo
+        n_pairs = pairs.shape[0]
+        checking = n_pairs > 0
+        clearance = geo_set[0]
+        influence = geo_set[1]
+        avoid_gain = geo_set[2]
+        avoid_rows = checking and bounded
+        avoid_null = checking and redundant and objective == CLEARANCE
+        cbuf = clearance_buffers(n, shapes.shape[0], n_pairs)
+        cwork = clearance_work(plant, n)
+        slide = cwork[7]
+        stats = cbuf[9]
+        reset_stats(stats)
+        cbuf[5][:] = 0.0
+        speed_now = np.empty(n_pairs)
+        q_prev = np.empty(n)
+        qd_prev = np.empty(n)
+        A_prev = np.empty((3, 3))
+        m_rows = 0
+        qp_buf = qp_buffers(n, n_pairs)
+
+        kinematics(plant, q, eye, zero, np.bool_(True), kin)
+        gjm(plant, kin, g)
+        if separate:
+            kinematics(ch, q, eye, zero, np.bool_(True), kin_c)
+            gjm(ch, kin_c, g_c)
+        _, com_b, _, _, ee_p_b, ee_A_b = kin
+        J_b = g_c[0] if rows == 6 else g_c[0][:3]  # the tracked rows of the GJM (a view: gjm writes in place)
+        com_w = np.empty(3)
+        for r in range(3):
+            com_w[r] = -com_b[0, r]  # the base starts at the world origin with the identity attitude
+
+        pos_max = 0.0
+        att_max = 0.0
+        cpl_max = 0.0
+        pos_sq = 0.0
+        att_sq = 0.0
+        cpl_sq = 0.0
+        pos_e = 0.0
+        att_e = 0.0
+        cpl_e = 0.0
+        min_sigma = np.inf
+        t_min_sigma = np.nan
+        min_det = np.inf
+        t_min_det = np.nan
+        limit_joint = -1
+        t_limit = np.nan
+        limit_excess = 0.0
+        rot_key = 0.0
+        finite = True
+        t_div = np.nan
+        last = N
+        for k in range(N + 1):
+            t_k = k * dt
+            # World pose: A_0 times the base-frame pose, shifted by the fixed system CoM.
+            for r in range(3):
+                base_p[r] = com_w[r] + A0[r, 0] * com_b[0, 0] + A0[r, 1] * com_b[0, 1] + A0[r, 2] * com_b[0, 2]
+                ee_p[r] = com_w[r] + A0[r, 0] * ee_p_b[0] + A0[r, 1] * ee_p_b[1] + A0[r, 2] * ee_p_b[2]
+                for c in range(3):
+                    ee_A[r, c] = A0[r, 0] * ee_A_b[0, c] + A0[r, 1] * ee_A_b[1, c] + A0[r, 2] * ee_A_b[2, c]
+            # Tracking errors: dp = p - p_d, dphi = log(A A_d^T) (world axes).
+            for r in range(3):
+                for c in range(3):
+                    D[r, c] = ee_A[r, 0] * A_des[k, c, 0] + ee_A[r, 1] * A_des[k, c, 1] + ee_A[r, 2] * A_des[k, c, 2]
+            log_so3(D, dphi)
+            sq_p = 0.0
+            sq_a = 0.0
+            sq_c = 0.0
+            for r in range(3):
+                dp = ee_p[r] - p_des[k, r]
+                sq_p += dp * dp
+                sq_a += dphi[r] * dphi[r]
+                sq_c += (dp * dphi[r]) * (dp * dphi[r])
+                xdot_w[r] = twists[k, r] + gain * (-dp)
+                xdot_w[r + 3] = twists[k, r + 3] + gain * (-dphi[r])
+            pos_e = np.sqrt(sq_p)
+            att_e = np.sqrt(sq_a)
+            cpl_e = np.sqrt(sq_c)
+            pos_max = max(pos_max, pos_e)
+            att_max = max(att_max, att_e)
+            cpl_max = max(cpl_max, cpl_e)
+            pos_sq += pos_e * pos_e
+            att_sq += att_e * att_e
+            cpl_sq += cpl_e * cpl_e
+            # The carrier's rotation from its start, tracked as 3 - trace A_0 = 4 sin^2(angle / 2)
+            # (increasing in the angle; converted once at the end).
+            rot_key = max(rot_key, 3.0 - (A0[0, 0] + A0[1, 1] + A0[2, 2]))
+            for j in range(n):
+                excess = max(ch.joints[j, LOWER] - q[j], q[j] - ch.joints[j, UPPER])
+                if excess > 0.0:
+                    if limit_joint < 0:
+                        limit_joint = j
+                        t_limit = t_k
+                    if j == limit_joint:
+                        limit_excess = max(limit_excess, excess)
+            if checking:
+                pose_all(shapes, kin[0], kin[1], A0, com_w, cbuf[0])
+                prev_dist, prev_speed, step_speed = cbuf[4], cbuf[5], cbuf[14]
+                joint_reach(cbuf[0], slide, kin, cbuf[15])
+                if k > 0:  # the speed bound of the step that just ended: its rates at either end
+                    pair_speeds(cbuf[0], pairs, cbuf[15], g[1], qd_prev, speed_now)
+                    for p in range(n_pairs):
+                        step_speed[p] = max(prev_speed[p], speed_now[p])
+                # exact distances for the pairs that may be the smallest (of the sample when the trace
+                # is kept, else of the plan), that constrain the step, or that the check between
+                # samples may need; lower bounds for the others
+                cutoff = max(stats[MIN_D], influence if (avoid_rows or avoid_null) else -np.inf)
+                best, best_pair = sample_distances(pairs, vertices, cutoff, clearance, dt, k == 0, record, cbuf)
+                if record:
+                    tr_clear[k] = best
+                    tr_cpair[k] = best_pair
+                dist, exact = cbuf[1], cbuf[2]
+                for p in range(n_pairs):
+                    if exact[p] != 0.0:
+                        note_distance(stats, dist[p], t_k, p, clearance)
+                if k > 0:  # the step that just ended, between samples
+                    for p in range(n_pairs):
+                        # (the call only where the Lipschitz bound cannot tell: it takes the buffers)
+                        if (
+                            prev_dist[p] >= clearance
+                            and dist[p] >= clearance
+                            and (0.5 * (prev_dist[p] + dist[p] - step_speed[p] * dt) < clearance)
+                        ):
+                            check_interval(
+                                plant,
+                                shapes,
+                                vertices,
+                                pairs[p, 0],
+                                pairs[p, 1],
+                                p,
+                                t_k - dt,
+                                dt,
+                                q_prev,
+                                qd_prev,
+                                A_prev,
+                                com_w,
+                                prev_dist[p],
+                                dist[p],
+                                step_speed[p],
+                                clearance,
+                                cbuf,
+                                cwork,
+                            )
+                if avoid_rows:
+                    m_rows = avoidance_rows(cbuf[0], pairs, cbuf, slide, kin, g_c[1], influence, clearance, avoid_gain, dt)
+            for r in range(3):
+                xdot_b[r] = A0[0, r] * xdot_w[0] + A0[1, r] * xdot_w[1] + A0[2, r] * xdot_w[2]
+                xdot_b[r + 3] = A0[0, r] * xdot_w[3] + A0[1, r] * xdot_w[4] + A0[2, r] * xdot_w[5]
+            ok, _ = jacobi_svd(J_b, sv, k % REFRESH_EVERY == 0)
+            s = sv[2]
+            if replaying:
+                ok = True
+                for j in range(n):
+                    qd[j] = given[k, j]
+                    ok = ok and np.isfinite(qd[j])
+                damping[:] = np.nan
+            elif ok:
+                apply_inverse(method, params_b, J_b, sv[1], s, sv[3], xdot_b, qd, damping, inv_scratch)
+                if redundant:
+                    if bounded:
+                        for j in range(n):
+                            shift[j] = qd[j]
+                    if avoid_null:
+                        clearance_push(cbuf[0], pairs, cbuf, slide, kin, g_c[1], influence, objective_gain, null_work[3])
+                    elif objective == CLEARANCE:
+                        null_work[3][:] = 0.0  # no geometry: nothing to push apart
+                    _secondary(objective, objective_gain, sv, g_c, q, centre, qd, null_work)
+                    if bounded:
+                        for j in range(n):
+                            shift[j] = qd[j] - shift[j]
+                if bounded:
+                    ok = bound_rates(
+                        ch,
+                        q,
+                        dt,
+                        speed_limit,
+                        sv[1],
+                        s,
+                        sv[3],
+                        damping,
+                        params_b[0],
+                        xdot_b,
+                        qd,
+                        shift,
+                        box,
+                        qp_buf,
+                        cbuf[6],
+                        cbuf[7],
+                        m_rows,
+                        speed_now,
+                    )
+                for j in range(n):
+                    if not np.isfinite(qd[j]):
+                        ok = False
+            else:
+                qd[:] = np.nan
+                damping[:] = np.nan
+            ok = ok and np.isfinite(pos_e) and np.isfinite(att_e)
+            det = np.nan
+            if n == rows and np.isfinite(s[0]):
+                det = det6(J_b, det_scratch) if rows == 6 else det3(J_b)
+            if dynamics:
+                for j in range(n):
+                    dyn_q[k, j] = q[j]
+            if record:
+                for j in range(n):
+                    tr_q[k, j] = q[j]
+                    tr_qd[k, j] = qd[j]
+                for r in range(3):
+                    tr_bp[k, r] = base_p[r]
+                    tr_ep[k, r] = ee_p[r]
+                    for c in range(3):
+                        tr_bA[k, r, c] = A0[r, c]
+                        tr_eA[k, r, c] = ee_A[r, c]
+                for i in range(m):
+                    tr_sv[k, i] = s[i]
+                    tr_damp[k, i] = damping[i]
+                tr_det[k] = det
+                tr_perr[k] = pos_e
+                tr_aerr[k] = att_e
+            for j in range(n):
+                v = abs(qd[j])
+                if not v <= peak[j]:  # NaN counts as exceeding
+                    peak[j] = v if np.isfinite(v) else np.inf
+            if s[m - 1] < min_sigma:
+                min_sigma = s[m - 1]
+                t_min_sigma = t_k
+            if abs(det) < min_det:
+                min_det = abs(det)
+                t_min_det = t_k
+            if not ok:
+                finite = False
+                t_div = t_k
+                last = k
+                break
+            if k == N:
+                break
+            if checking:  # what the check of the coming step needs from its start
+                pair_speeds(cbuf[0], pairs, cbuf[15], g[1], qd, cbuf[5])
+                for p in range(n_pairs):
+                    cbuf[4][p] = cbuf[1][p]
+                for j in range(n):
+                    q_prev[j] = q[j]
+                    qd_prev[j] = qd[j]
+                for r in range(3):
+                    for c in range(3):
+                        A_prev[r, c] = A0[r, c]
+            # Joints: the paper's explicit update. Base attitude: Magnus along the joint line.
+            advance(plant, q, qd, dt, A0, kin, g, kin_m, g_m, q_next, work)
+            for j in range(n):
+                q[j] = q_next[j]
+            if separate:
+                kinematics(ch, q, eye, zero, np.bool_(True), kin_c)
+                gjm(ch, kin_c, g_c)
+            _, com_b, _, _, ee_p_b, ee_A_b = kin
+
+        if record:
+            for k in range(last + 1, N + 1):
+                tr_q[k] = np.nan
+                tr_qd[k] = np.nan
+                tr_bp[k] = np.nan
+                tr_bA[k] = np.nan
+                tr_ep[k] = np.nan
+                tr_eA[k] = np.nan
+                tr_sv[k] = np.nan
+                tr_det[k] = np.nan
+                tr_damp[k] = np.nan
+                tr_perr[k] = np.nan
+                tr_aerr[k] = np.nan
+                tr_clear[k] = np.nan
+                tr_cpair[k] = -1.0
+        count = N + 1
+        if finite:
+            metrics[POS_MAX] = pos_max
+            metrics[POS_RMS] = np.sqrt(pos_sq / count)
+            metrics[POS_FINAL] = pos_e
+            metrics[ATT_MAX] = att_max
+            metrics[ATT_RMS] = np.sqrt(att_sq / count)
+            metrics[ATT_FINAL] = att_e
+            metrics[CPL_MAX] = cpl_max
+            metrics[CPL_RMS] = np.sqrt(cpl_sq / count)
+            metrics[CPL_FINAL] = cpl_e
+            metrics[BASE_ROT_MAX] = 2.0 * np.arcsin(min(1.0, np.sqrt(max(rot_key, 0.0) / 4.0)))
+            metrics[BASE_ROT_FINAL] = rotation_angle(A0)
+        else:
+            for i in range(CPL_FINAL + 1):
+                metrics[i] = np.nan
+            metrics[BASE_ROT_MAX] = np.nan
+            metrics[BASE_ROT_FINAL] = np.nan
+        best, best_lin = fastest_joints(ch.joints, peak)
+        metrics[MAX_SPEED] = peak[best] if best >= 0 else 0.0
+        metrics[MAX_SPEED_JOINT] = best
+        metrics[MAX_LIN_SPEED] = peak[best_lin] if best_lin >= 0 else 0.0
+        metrics[MAX_LIN_SPEED_JOINT] = best_lin
+        metrics[MIN_SIGMA] = min_sigma
+        metrics[T_MIN_SIGMA] = t_min_sigma
+        metrics[MIN_DET] = min_det if n == rows else np.nan
+        metrics[T_MIN_DET] = t_min_det if n == rows else np.nan
+        metrics[FINITE] = 1.0 if finite else 0.0
+        metrics[T_DIVERGED] = t_div
+        metrics[LIMIT_JOINT] = limit_joint
+        metrics[T_LIMIT] = t_limit
+        metrics[LIMIT_EXCESS] = limit_excess if limit_joint >= 0 else np.nan
+        metrics[MIN_CLEARANCE] = stats[MIN_D] if checking else np.nan
+        metrics[T_MIN_CLEARANCE] = stats[T_MIN_D]
+        metrics[CLEARANCE_PAIR] = stats[MIN_PAIR]
+        metrics[COLLISION_PAIR] = stats[HIT_PAIR]
+        metrics[T_COLLISION] = stats[T_HIT]
+        metrics[COLLISION_DISTANCE] = stats[HIT_D]
+        metrics[GEOMETRY] = 1.0 if checking else 0.0
+        _dynamics_metrics(plant, dt, N, finite and dynamics, qd, dyn, record, metrics)
