@@ -1,4 +1,4 @@
-"""The planner's step loop (the paper's Figure 2) for one parameter set, with running metrics.
+"""The planner's step loop (the paper's Figure 2), for each parameter set of a range, with running metrics.
 
 At each sample ``t_k = k dt`` (k = 0..N): the kinematics and GJM at ``q_k`` in the base frame
 (base attitude the identity, system CoM at the origin: both follow from rigid motions, so the
@@ -468,7 +468,7 @@ def simulate(
     """Plan the parameter sets ``params[b] (B, P)`` for ``b`` in ``[start, stop)`` into their
     metrics rows ``out[b] (N_METRICS,)``. The one step loop of the engine: a single plan is a range
     of one. (One function, not a loop over an inlined plan-one kernel: numba copies an inlined
-    function's IR block by block, each copy with the whole scope, 4 s of a cold compilation.)
+    function's IR block by block, each copy with the whole scope, 4.4 s of a cold compilation.)
 
     ``twists (N+1, 6)`` commanded path twists and ``p_des (N+1, 3)``, ``A_des (N+1, 3, 3)``
     desired poses (world); ``gain`` the pose feedback gain (1/s); ``rows`` = 6 tracks the pose, 3
