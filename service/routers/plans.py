@@ -81,7 +81,7 @@ async def create_plan(
     def work() -> Response:
         asked = plans.request_of(db, body)
         row = plans.store(db, settings, planned := plans.compute(db, settings, asked))
-        content = plans.body_json(plans.summary(row), sections, planned.record, row.replay)
+        content = plans.body_json(plans.summary(row, asked), sections, planned.record, row.replay)
         return Response(content, status_code=201, media_type="application/json", headers={"Location": f"/v1/plans/{row.id}"})
 
     return await run_admitted(request, work, cost=plan_cost(body))

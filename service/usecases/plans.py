@@ -73,12 +73,15 @@ ROBUSTNESS_BANDS = (
 )
 
 
-def _quaternions(R: np.ndarray) -> np.ndarray:
-    ok = np.all(np.isfinite(R), axis=(-2, -1))
-    out = np.full(R.shape[:-2] + (4,), np.nan)
-    if np.any(ok):
-        out[ok] = matrix_to_quaternion(R[ok])
-    return out
+def _quaternions(*R: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The unit quaternions ``(..., 4)`` of each rotation array ``(..., 3, 3)``, NaN where a matrix
+    is not finite (a diverged plan's samples); one kernel call for all of them."""
+    stacked = np.concatenate(R)
+    out = np.full(stacked.shape[:-2] + (4,), np.nan)
+    ok = np.isfinite(stacked).all(axis=(-2, -1))
+    if ok.any():
+        out[ok] = matrix_to_quaternion(stacked[ok])
+    return tuple(np.split(out, np.cumsum([r.shape[0] for r in R[:-1]])))
 
 
 def record_of(result: PlanResult, model: RobotModel) -> dict[str, np.ndarray]:
@@ -87,6 +90,9 @@ def record_of(result: PlanResult, model: RobotModel) -> dict[str, np.ndarray]:
     and mount wrench, ``prismatic (n,)`` (1.0 for a prismatic joint), the robot's
     ``effort_limit (n,)`` when planned (N m or N, inf: none; for the figures) and, for a plan
     with collision geometry, its ``clearance (N+1,)`` m."""
+    base_attitude, ee_attitude, ee_attitude_desired = _quaternions(
+        result.base_attitude, result.ee_attitude, result.ee_attitude_desired
+    )
     return {
         "prismatic": np.asarray(model.prismatic, dtype=float),
         "effort_limit": np.asarray(model.effort_limits, dtype=float),
@@ -98,11 +104,11 @@ def record_of(result: PlanResult, model: RobotModel) -> dict[str, np.ndarray]:
         "q": result.q,
         "qd": result.qd,
         "base_position": result.base_position,
-        "base_attitude": _quaternions(result.base_attitude),
+        "base_attitude": base_attitude,
         "ee_position": result.ee_position,
-        "ee_attitude": _quaternions(result.ee_attitude),
+        "ee_attitude": ee_attitude,
         "ee_position_desired": result.ee_position_desired,
-        "ee_attitude_desired": _quaternions(result.ee_attitude_desired),
+        "ee_attitude_desired": ee_attitude_desired,
         "singular_values": result.singular_values,
         "det_J_g": result.det_J_g,
         "damping": result.damping,
@@ -392,13 +398,15 @@ def asked(stored: dict[str, Any] | None) -> PlanRequest | None:
         return None
 
 
-def summary(row: Plan | Any) -> PlanSummary:
-    """A plan's summary from its row (or a row of :data:`SUMMARY_COLUMNS`)."""
+def summary(row: Plan | Any, request: PlanRequest | None = None) -> PlanSummary:
+    """A plan's summary from its row (or a row of :data:`SUMMARY_COLUMNS`); ``request``: the
+    validated request the row stores, when the caller has it (a plan just made), so that it is
+    not validated again."""
     return PlanSummary.model_validate(
         {
             "id": row.id,
             "robot_id": row.robot_id,
-            "request": asked(row.request),
+            "request": asked(row.request) if request is None else request,
             "method": row.method,
             "success": row.success,
             "message": row.message,

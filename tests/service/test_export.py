@@ -20,8 +20,10 @@ import numpy as np
 import pytest
 import scipy.io
 
+from engine import spatial
 from service import figures
 from service.schemas.trajectories import MEDIA_TYPES
+from service.usecases import plans as usecases_plans
 from service.usecases import trajectories
 from tests.service.conftest import PAPER_TASK
 
@@ -253,3 +255,20 @@ def test_a_diverged_plan_has_no_ros_trajectory() -> None:
     record = {"t": t, "q": q, "qd": np.zeros((4, 2)), "prismatic": np.zeros(2)}
     with pytest.raises(trajectories.ConflictError, match=r"not finite from t = 1 s"):
         trajectories.to_ros(record, ["a", "b"], "p")
+
+
+def test_the_stored_attitudes_are_quaternions_and_null_where_the_plan_diverged() -> None:
+    """(Not over HTTP, as above.) The record's three attitude arrays, converted in one call, keep
+    their own rows: each finite matrix becomes its own quaternion, a non-finite one NaN."""
+    rng = np.random.default_rng(7)
+    rotations = [spatial.quaternion_to_matrix(rng.standard_normal((n, 4))) for n in (5, 5, 5)]
+    rotations[1][3:] = np.nan  # the executed attitude diverged from the fourth sample
+    rotations[2][0, 1, 1] = np.inf
+    quaternions = usecases_plans._quaternions(*rotations)
+    assert [q.shape for q in quaternions] == [(5, 4)] * 3
+    for R, q in zip(rotations, quaternions, strict=True):
+        finite = np.isfinite(R).all(axis=(1, 2))
+        assert np.isnan(q[~finite]).all()
+        assert np.allclose(q[finite], spatial.matrix_to_quaternion(R[finite]), atol=0, rtol=0)
+    assert np.isnan(quaternions[1][3:]).all() and np.isnan(quaternions[2][0]).all() and np.isfinite(quaternions[0]).all()
+    assert usecases_plans._quaternions(np.full((2, 3, 3), np.nan))[0].shape == (2, 4)

@@ -260,7 +260,9 @@ def test_large_bodies_are_encoded_in_pieces_to_the_same_bytes() -> None:
             "short": rng.random((3, 2)),
         },
     }
-    assert jsonio.dumps_large(value) == jsonio.dumps(value)
+    assert jsonio._has_large(value) and jsonio.dumps_large(value) == jsonio.dumps(value)
+    assert not jsonio._has_large({**value, "trajectory": {"short": value["trajectory"]["short"]}})
+    assert jsonio._has_large({"a": {"b": {"c": np.zeros(rows + 1)}}, "d": [np.zeros(rows + 1)]})
 
 
 def test_an_exhausted_connection_pool_is_a_503_then_recovers(tmp_path: Path) -> None:
