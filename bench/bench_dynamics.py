@@ -1,6 +1,7 @@
 """Joint torques along the paper plan (adaptive damping, lambda_max 0.040, epsilon 0.37,
-dt 0.25 s): µs per sample of the compiled inverse dynamics (with and without the kinematics and
-GJM it needs), of the executed trajectory's spline, and how executing the plan's spline instead
+dt 0.25 s): µs per sample of the compiled inverse dynamics (with and without the kinematics it
+needs; the base twist given, the GJM's ``base_map @ qd``, or found from zero momentum in the
+recursion), of the executed trajectory's spline, and how executing the plan's spline instead
 of its piecewise-constant rates changes the end-effector tracking.
 
 Run: `PYTHONPATH=. .venv/bin/python bench/bench_dynamics.py [--rounds R]` (medians of R rounds).
@@ -26,13 +27,16 @@ from engine.kernels import spline as spline_kernels
 
 
 @njit(cache=False)
-def _rnea_only(ch, att, com, jpos, jaxis, ee_p, ee_A, twists, qd, qdd, repeats, tau, force, torque, acc):
-    """The per-sample routine alone, on precomputed kinematics."""
+def _rnea_only(ch, att, com, jpos, jaxis, ee_p, ee_A, twists, qd, qdd, repeats, tau, force, torque, acc, zero_momentum):
+    """The per-sample routine alone, on precomputed kinematics (``zero_momentum``: it finds the
+    twist, written over ``twists``)."""
     work = dynamics_kernels.dynamics_buffers(qd.shape[1])
     for _ in range(repeats):
         for k in range(qd.shape[0]):
             kin = (att[k], com[k], jpos[k], jaxis[k], ee_p[k], ee_A[k])
-            dynamics_kernels.inverse_dynamics(ch, kin, twists[k], qd[k], qdd[k], work, tau[k], force[k], torque[k], acc[k])
+            dynamics_kernels.inverse_dynamics(
+                ch, kin, twists[k], qd[k], qdd[k], work, tau[k], force[k], torque[k], acc[k], zero_momentum
+            )
 
 
 def _median_us(fn: Callable[[], object], rounds: int, per: int) -> float:
@@ -69,12 +73,21 @@ def main() -> None:
         for _ in range(repeats):
             dynamics_kernels.inverse_dynamics_many(ch, q, qd, qdd, A0, origin, tau, force, torque, twist, acc)
 
+    def kinematics() -> None:
+        for _ in range(repeats):
+            chain_kernels.kinematics_many(ch, q, A0, origin, False, *kins, *ee)
+
     def kinematics_gjm() -> None:
         for _ in range(repeats):
             chain_kernels.gjm_many(ch, q, A0, origin, False, J, base_map)
 
     def rnea() -> None:
-        _rnea_only(ch, *kins, *ee, twists, qd, qdd, repeats, tau, force, torque, acc)
+        _rnea_only(ch, *kins, *ee, twists, qd, qdd, repeats, tau, force, torque, acc, np.bool_(False))
+
+    found = twists.copy()
+
+    def rnea_zero_momentum() -> None:
+        _rnea_only(ch, *kins, *ee, found, qd, qdd, repeats, tau, force, torque, acc, np.bool_(True))
 
     v0, v1 = np.zeros(n), np.ascontiguousarray(result.qd[-1])
     t = np.ascontiguousarray(result.t)
@@ -84,13 +97,16 @@ def main() -> None:
         for _ in range(repeats):
             spline_kernels.clamped_spline(t, q, v0, v1, sd, sdd)
 
-    for fn in (full, kinematics_gjm, rnea, spline):  # compile / load
+    for fn in (full, kinematics, kinematics_gjm, rnea, rnea_zero_momentum, spline):  # compile / load
         fn()
     per = repeats * N1
     print(f"paper plan: {N1} samples, {n} joints, success={result.success}")
-    print(f"inverse_dynamics_many (kinematics + GJM + RNEA): {_median_us(full, args.rounds, per):.2f} µs/sample")
-    print(f"  of which kinematics + GJM (gjm_many):           {_median_us(kinematics_gjm, args.rounds, per):.2f} µs/sample")
-    print(f"  the per-sample RNEA alone (inverse_dynamics):    {_median_us(rnea, args.rounds, per):.2f} µs/sample")
+    print(f"the twist from zero momentum: within {np.abs(found - twists).max():.1e} of the GJM's base_map @ qd")
+    print(f"inverse_dynamics_many (kinematics + RNEA, twist from momentum): {_median_us(full, args.rounds, per):.2f} µs/sample")
+    print(f"  of which the kinematics (kinematics_many):       {_median_us(kinematics, args.rounds, per):.2f} µs/sample")
+    print(f"  the RNEA alone, finding the twist:               {_median_us(rnea_zero_momentum, args.rounds, per):.2f} µs/sample")
+    print(f"  the RNEA alone, given the twist:                 {_median_us(rnea, args.rounds, per):.2f} µs/sample")
+    print(f"kinematics + GJM (gjm_many), for comparison:     {_median_us(kinematics_gjm, args.rounds, per):.2f} µs/sample")
     print(f"clamped spline (the executed trajectory):        {_median_us(spline, args.rounds, per):.3f} µs/sample")
 
     planned = replay(robot, result)

@@ -209,7 +209,8 @@ def test_dynamics_do_not_depend_on_where_the_system_is(rng, name):
     """No gravity: the torques and the mount wrench (carrier frame) are the same for any base
     pose, and the base twist and acceleration turn with it. Computed in the base frame with the
     system CoM at the origin, as the planner's step loop has the kinematics, through the
-    per-sample kernel and preallocated buffers."""
+    per-sample kernel and preallocated buffers: given the GJM's twist (``base_map @ qd``), and
+    finding the zero-momentum twist itself, which must be that twist."""
     model = ROBOTS[name](rng)
     n = model.n_joints
     q, qd, qdd, A0, pos = _random_states(rng, model, 6)
@@ -220,7 +221,14 @@ def test_dynamics_do_not_depend_on_where_the_system_is(rng, name):
         chain_kernels.kinematics(model.chain, q[k], np.eye(3), np.zeros(3), True, kin)
         chain_kernels.gjm(model.chain, kin, g)
         twist[:] = g[1] @ qd[k]
-        assert dynamics_kernels.inverse_dynamics(model.chain, kin, twist, qd[k], qdd[k], work, tau, force, torque, acc)
+        assert dynamics_kernels.inverse_dynamics(model.chain, kin, twist, qd[k], qdd[k], work, tau, force, torque, acc, False)
+        found, tau_found, acc_found = np.full(6, np.nan), np.empty(n), np.empty(6)
+        assert dynamics_kernels.inverse_dynamics(
+            model.chain, kin, found, qd[k], qdd[k], work, tau_found, np.empty(3), np.empty(3), acc_found, True
+        )
+        np.testing.assert_allclose(found, twist, rtol=0.0, atol=1e-13 * max(1.0, np.abs(twist).max()))
+        np.testing.assert_allclose(tau_found, tau, rtol=0.0, atol=1e-12 * np.abs(tau).max())
+        np.testing.assert_allclose(acc_found, acc, rtol=0.0, atol=1e-11)
         scale = np.abs(tau).max()
         np.testing.assert_allclose(world.joint_torques[k], tau, rtol=0.0, atol=1e-12 * scale)
         np.testing.assert_allclose(world.mount_force[k], force, rtol=0.0, atol=1e-12 * scale)
