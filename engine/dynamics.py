@@ -2,8 +2,9 @@
 recursive Newton-Euler of :mod:`engine.kernels.dynamics`.
 
 No gravity and no external wrench: the base twist follows from zero momentum (what the GJM's
-base map gives, found in the recursion), its acceleration from zero rate of change of momentum. Along a plan the joint motion is
-the executed trajectory of :mod:`engine.executed` (the plan's own accelerations are impulses).
+base map gives, found in the recursion), its acceleration from zero rate of change of momentum.
+Along a plan the joint motion is the executed trajectory of :mod:`engine.executed` (the plan's
+own accelerations are impulses).
 The torques and the mount wrench do not depend on where the system is or how it is turned (no
 gravity), only on ``q``, ``qd`` and ``qdd``; the base attitude only sets the axes of the base
 twist and acceleration.
