@@ -8,6 +8,12 @@ RUN_ARGS ?=
 
 .PHONY: run test lint typecheck bench docs vendor clean
 
+# The project's own modules as bytecode (__pycache__/*.pyc beside them): where
+# PYTHONDONTWRITEBYTECODE is set (our image, this kind of CI machine) Python would compile their
+# sources again in every process it starts, 0.16 s each for the API and the worker; compileall
+# writes only what changed since (0.05 s when nothing did).
+BYTECODE := $(BIN)/python -m compileall -q engine service migrations
+
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
@@ -26,6 +32,7 @@ $(STAMP): $(BIN)/python pyproject.toml
 # printed once the API is ready; Ctrl-C stops both.
 # More options: make run RUN_ARGS='--workers 2 --log-format json' (spacearm run --help).
 run: $(RUN_STAMP)
+	@$(BYTECODE)
 	@$(BIN)/spacearm run $(RUN_ARGS)
 
 lint: $(STAMP)
@@ -42,6 +49,7 @@ test: $(STAMP)
 	$(BIN)/ruff check engine service tests bench
 	$(BIN)/mypy engine service
 	$(BIN)/spacearm compile
+	$(BYTECODE)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The reference (docs/) as a static site in var/site; `$(BIN)/mkdocs serve` to read it while editing.
@@ -51,6 +59,7 @@ docs: $(STAMP)
 # The engine's rows against the anchors, then every goal of issue 21 met or missed in one run
 # (start-up, requests, admission, the compiled anchor's kernel goals, memory).
 bench: $(STAMP)
+	$(BYTECODE)
 	$(BIN)/python bench/bench_engine.py
 	$(BIN)/python bench/bench_goals.py
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import signal
 import sys
@@ -225,6 +226,16 @@ def compile_command(force: bool, say: Say) -> int:
     return 0
 
 
+def pause_collector() -> None:
+    """In ``spacearm serve`` and ``spacearm worker``, before their imports: no cyclic garbage
+    collection until the start-up ends, where the process freezes what it made and turns the
+    collector back on (``freeze_heap`` of :class:`service.app.Kernels` and
+    :func:`service.worker.run_worker`). The imports and the kernels' loading make some 230,000
+    objects that live as long as the process, and about 1,700 that are cyclic garbage; collecting
+    while they grow walked them four times in full, 0.4 of the 1.9 s the API's imports took."""
+    gc.disable()
+
+
 def _stop_while_starting(logger: str) -> None:
     """Until the worker installs its own handlers (which finish the current generation first): a
     SIGTERM or Ctrl-C while it imports its code or waits at ``spacearm run``'s gate ends it at once,
@@ -251,6 +262,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "compile":
         return compile_command(args.force, say)
     if args.command == "serve":
+        pause_collector()
         from service.app import create_app
         from service.infra.server import serve
         from service.run import pass_gate
@@ -267,12 +279,13 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "worker":
         _stop_while_starting("spacearm.worker")
+        pause_collector()
         from service.run import pass_gate
         from service.worker import run_worker
 
         if not pass_gate():
             return 1
-        run_worker(settings, once=args.once)
+        run_worker(settings, once=args.once, freeze_heap=True)
         return 0
     if args.command == "plan":
         from service.plan_file import plan_file

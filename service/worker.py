@@ -5,6 +5,7 @@ the worker: it backs off and tries again (and gives a running job back, see
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import random
@@ -34,8 +35,13 @@ def worker_id() -> str:
     return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
 
 
-def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Event | None = None) -> int:
-    """Poll loop. Returns the number of jobs processed."""
+def run_worker(
+    settings: Settings, *, once: bool = False, shutdown: threading.Event | None = None, freeze_heap: bool = False
+) -> int:
+    """Poll loop. Returns the number of jobs processed. ``freeze_heap`` (``spacearm worker``, a
+    process of its own): once the kernels are in, keep the start-up's objects out of full garbage
+    collections (:func:`gc.freeze`) and turn the collector on (it was off for the start-up:
+    :func:`service.cli.pause_collector`)."""
     stop = shutdown or threading.Event()
     if shutdown is None and threading.current_thread() is threading.main_thread():
 
@@ -48,6 +54,9 @@ def run_worker(settings: Settings, *, once: bool = False, shutdown: threading.Ev
 
     seconds = warm_up()  # load (or compile) the kernels before claiming a job
     log.info("engine kernels ready in %.1f s", seconds)
+    if freeze_heap:
+        gc.freeze()
+        gc.enable()
     db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
     me = worker_id()
     dask_client = None

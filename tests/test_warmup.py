@@ -4,6 +4,7 @@ compile, and each kernel is compiled for one signature only (a literal argument 
 
 from __future__ import annotations
 
+import gc
 import json
 import subprocess
 import sys
@@ -18,7 +19,17 @@ from engine.kernels.cache import HERE as KERNELS_DIR
 from engine.kernels.cache import marker_path
 from engine.kernels.jit import CACHE_DIR, KERNELS
 from engine.model import table1_robot
-from engine.warmup import PARTS, compile_kernels, kernel_name, loop_callees, signatures_path, warm_up
+from engine.warmup import (
+    COMPILE_GC_THRESHOLDS,
+    PARTS,
+    _command,
+    compile_kernels,
+    compile_part,
+    kernel_name,
+    loop_callees,
+    signatures_path,
+    warm_up,
+)
 
 SCRIPT = """
 import json
@@ -48,6 +59,26 @@ def test_a_full_warm_up_after_the_parts_compiles_nothing_and_each_kernel_once() 
     found = json.loads(done.stdout.strip().splitlines()[-1])
     assert found["compiled"] == [], found
     assert found["signatures"] == {"simulate": 1, "integrate": 1}, found
+
+
+def test_a_compiling_child_collects_garbage_less_often(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A child of ``spacearm compile`` runs :func:`compile_part`: the part's warm-up, recording its
+    signatures, with the collector's thresholds raised, and what was there put back after."""
+    import engine.warmup
+
+    seen: list[tuple[tuple[str, ...], bool, tuple[int, ...]]] = []
+
+    def fake(parts: list[str], *, record: bool = False) -> float:
+        seen.append((tuple(parts), record, gc.get_threshold()))
+        return 0.0
+
+    monkeypatch.setattr(engine.warmup, "warm_up", fake)
+    before = gc.get_threshold()
+    assert before != COMPILE_GC_THRESHOLDS
+    compile_part("tools")
+    assert seen == [(("tools",), True, COMPILE_GC_THRESHOLDS)]
+    assert gc.get_threshold() == before
+    assert _command("tools")[-1] == "tools" and "compile_part(sys.argv[2])" in _command("tools")[3]
 
 
 def test_unknown_parts_are_refused() -> None:

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import queue
@@ -357,7 +358,8 @@ def test_compile_says_when_the_kernels_are_compiled_and_reports_progress() -> No
 
 
 def test_serve_freezes_the_start_up_heap(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``spacearm serve`` is a process of its own: it asks the app to freeze its start-up objects
+    """``spacearm serve`` is a process of its own: it turns the cyclic garbage collector off before
+    its imports and asks the app to freeze its start-up objects and turn the collector back on
     (:class:`service.app.Kernels`); an app made any other way does not."""
     import service.app
     import service.cli
@@ -374,5 +376,47 @@ def test_serve_freezes_the_start_up_heap(monkeypatch: pytest.MonkeyPatch) -> Non
     monkeypatch.setattr(service.infra.server, "serve", lambda *args: None)
     monkeypatch.setattr(service.cli, "configure", lambda *args, **kwargs: None)  # the test process's logging stays
     monkeypatch.delenv(GATE_FD, raising=False)
-    assert service.cli.main(["serve", "--port", str(free_port())]) == 0
+    assert gc.isenabled()
+    try:
+        assert service.cli.main(["serve", "--port", str(free_port())]) == 0
+        assert not gc.isenabled()  # the app (here a stand-in that never starts) turns it back on
+    finally:
+        gc.enable()
     assert made == [True]
+
+
+def test_worker_collects_again_after_its_start_up(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``spacearm worker`` turns the collector off before its imports; the worker turns it back on
+    (and freezes its start-up objects) once the kernels are in, before it polls for jobs."""
+    import service.cli
+    import service.worker
+    from service.run import GATE_FD
+
+    seen: list[tuple[bool, int]] = []
+
+    def warm_up() -> float:
+        seen.append((gc.isenabled(), gc.get_freeze_count()))
+        return 0.0
+
+    class StopPollingError(Exception):
+        pass
+
+    def database(*args: object, **kwargs: object) -> None:
+        seen.append((gc.isenabled(), gc.get_freeze_count()))
+        raise StopPollingError  # the poll loop is not this test's
+
+    monkeypatch.setattr(service.worker, "warm_up", warm_up)
+    monkeypatch.setattr(service.worker, "Database", database)
+    monkeypatch.setattr(service.cli, "configure", lambda *args, **kwargs: None)
+    monkeypatch.setattr(signal, "signal", lambda *args: None)  # the test process's handlers stay
+    monkeypatch.delenv(GATE_FD, raising=False)
+    before = gc.get_freeze_count()
+    try:
+        with pytest.raises(StopPollingError):
+            service.cli.main(["worker", "--once"])
+    finally:
+        gc.enable()
+        gc.unfreeze()  # the test process's objects go back to the collector
+    (off, frozen_then), (on, frozen_now) = seen
+    assert not off and frozen_then == before
+    assert on and frozen_now > before

@@ -55,20 +55,44 @@ def test_a_failed_kernel_load_keeps_the_api_unready(tmp_path: Path, monkeypatch:
 
 def test_a_served_api_freezes_its_start_up_objects_before_it_is_ready(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """``spacearm serve`` (``freeze_heap``) takes the start-up's objects out of the garbage
-    collector's full collections before it says it is ready; an app made without it (tests,
-    embedding) leaves the collector alone."""
+    collector's full collections before it says it is ready, and turns the collector back on
+    (the command turned it off for its start-up); an app made without it (tests, embedding)
+    leaves the collector alone."""
     monkeypatch.setattr(engine, "warm_up", lambda: 0.0)
     before = gc.get_freeze_count()
     try:
         with _app(tmp_path) as client:
             _wait_ready(client)
-            assert gc.get_freeze_count() == before
+            assert gc.get_freeze_count() == before and gc.isenabled()
+        gc.disable()  # as `spacearm serve` does before its imports
         with _app(tmp_path, freeze_heap=True) as client:
             _wait_ready(client)
             assert gc.get_freeze_count() > before
+            assert gc.isenabled()
             assert client.get("/healthz").status_code == 200
     finally:
+        gc.enable()
         gc.unfreeze()  # the test process's objects go back to the collector
+
+
+def test_a_failed_kernel_load_turns_the_collector_back_on(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The collector is back on once the start-up ends, whether it ended well or not."""
+
+    def broken() -> float:
+        raise RuntimeError("no writable numba cache")
+
+    monkeypatch.setattr(engine, "warm_up", broken)
+    gc.disable()
+    try:
+        with _app(tmp_path, freeze_heap=True) as client:
+            deadline = time.monotonic() + 10
+            while client.get("/readyz").json()["kernels"] == "loading":
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+            assert gc.isenabled()
+    finally:
+        gc.enable()
+        gc.unfreeze()
 
 
 def _wait_ready(client: TestClient) -> None:
