@@ -364,6 +364,7 @@ def test_serve_freezes_the_start_up_heap(monkeypatch: pytest.MonkeyPatch) -> Non
     import service.app
     import service.cli
     import service.infra.server
+    import service.run
     from service.run import GATE_FD
 
     made: list[bool] = []
@@ -373,6 +374,7 @@ def test_serve_freezes_the_start_up_heap(monkeypatch: pytest.MonkeyPatch) -> Non
         return object()
 
     monkeypatch.setattr(service.app, "create_app", create_app)
+    monkeypatch.setattr(service.run, "kernels_compiled", lambda: True)
     monkeypatch.setattr(service.infra.server, "serve", lambda *args: None)
     monkeypatch.setattr(service.cli, "configure", lambda *args, **kwargs: None)  # the test process's logging stays
     monkeypatch.delenv(GATE_FD, raising=False)
@@ -385,10 +387,32 @@ def test_serve_freezes_the_start_up_heap(monkeypatch: pytest.MonkeyPatch) -> Non
     assert made == [True]
 
 
+def test_serve_collects_while_starting_when_it_must_compile(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With the kernel cache incomplete, ``spacearm serve`` compiles the kernels itself: the
+    collector stays on through its start-up (numba's compilation makes millions of objects in cycles)."""
+    import service.app
+    import service.cli
+    import service.infra.server
+    import service.run
+    from service.run import GATE_FD
+
+    monkeypatch.setattr(service.run, "kernels_compiled", lambda: False)
+    monkeypatch.setattr(service.app, "create_app", lambda settings, *, freeze_heap=False: object())
+    monkeypatch.setattr(service.infra.server, "serve", lambda *args: None)
+    monkeypatch.setattr(service.cli, "configure", lambda *args, **kwargs: None)
+    monkeypatch.delenv(GATE_FD, raising=False)
+    try:
+        assert service.cli.main(["serve", "--port", str(free_port())]) == 0
+        assert gc.isenabled()
+    finally:
+        gc.enable()
+
+
 def test_worker_collects_again_after_its_start_up(monkeypatch: pytest.MonkeyPatch) -> None:
     """``spacearm worker`` turns the collector off before its imports; the worker turns it back on
     (and freezes its start-up objects) once the kernels are in, before it polls for jobs."""
     import service.cli
+    import service.run
     import service.worker
     from service.run import GATE_FD
 
@@ -405,6 +429,7 @@ def test_worker_collects_again_after_its_start_up(monkeypatch: pytest.MonkeyPatc
         seen.append((gc.isenabled(), gc.get_freeze_count()))
         raise StopPollingError  # the poll loop is not this test's
 
+    monkeypatch.setattr(service.run, "kernels_compiled", lambda: True)
     monkeypatch.setattr(service.worker, "warm_up", warm_up)
     monkeypatch.setattr(service.worker, "Database", database)
     monkeypatch.setattr(service.cli, "configure", lambda *args, **kwargs: None)
