@@ -234,9 +234,10 @@ def pause_collector() -> None:
     objects that live as long as the process, and about 1,700 that are cyclic garbage; collecting
     while they grew walked them four times in full, 0.4 of the 1.9 s the API's imports took.
 
-    Only when the kernel cache is complete: a process that compiles the kernels itself (started
-    by hand on a cold cache) makes millions of objects in cycles, which would stay until the end
-    of its start-up (a compiling process peaked at 872 MiB without collections, 524 with them)."""
+    Only when the kernel cache is complete as the process starts: one started by hand on an
+    incomplete cache compiles the kernels itself, which makes millions of objects in cycles that
+    would stay until the end of its start-up (a compiling process peaked at 872 MiB without
+    collections, 524 with them)."""
     from service.run import kernels_compiled
 
     if kernels_compiled():
