@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import gc
 import logging
 import os
 import threading
@@ -23,6 +22,7 @@ from engine.kernels.jit import park_linking_modules
 from service import errors, openapi
 from service.infra import observability, security
 from service.infra.admission import Admission
+from service.infra.collector import resume_collector
 from service.infra.db import Database
 from service.infra.metrics import process_exited
 from service.infra.ratelimit import AddressLimiter
@@ -95,10 +95,9 @@ class Kernels:
     rehearses a plan request (rolled back): liveness answers at once, readiness once the kernels
     are in (see :func:`engine.warm_up`), so the first request runs at the steady-state speed.
 
-    ``freeze_heap``: last, keep the start-up's objects out of full garbage collections
-    (:func:`gc.freeze`, see docs/service.md) and turn the collector on (``spacearm serve`` turned
-    it off for the start-up: :func:`service.cli.pause_collector`); only in a process of its own,
-    not in one that holds tests."""
+    ``freeze_heap``: last, keep the start-up's objects out of full garbage collections and turn
+    the collector on (:mod:`service.infra.collector`: ``spacearm serve`` turned it off for the
+    start-up); only in a process of its own, not in one that holds tests."""
 
     def __init__(self, app: FastAPI, db: Database, settings: Settings, freeze_heap: bool = False) -> None:
         self.app = app
@@ -138,10 +137,7 @@ class Kernels:
 
     def _resume_collector(self) -> None:
         if self.freeze_heap:
-            # no collection first: it would add 0.2 s to the start-up, to free about 1,700 objects
-            # (1 MB, of 230,000 objects), which the freeze now keeps
-            gc.freeze()
-            gc.enable()
+            resume_collector()
 
     async def _visit_routers(self) -> None:
         """FastAPI prepares each router's routes on the first request that reaches it; send each

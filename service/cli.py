@@ -4,13 +4,13 @@
 from __future__ import annotations
 
 import argparse
-import gc
 import logging
 import signal
 import sys
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
+from service.infra.collector import pause_collector
 from service.infra.logs import Say, configure, messenger
 from service.infra.settings import Settings
 
@@ -224,24 +224,6 @@ def compile_command(force: bool, say: Say) -> int:
         return 1
     say(f"engine kernels compiled in {seconds:.0f} s", False)
     return 0
-
-
-def pause_collector() -> None:
-    """In ``spacearm serve`` and ``spacearm worker``, before their imports: no cyclic garbage
-    collection until the start-up ends, where the process freezes what it made and turns the
-    collector back on (``freeze_heap`` of :class:`service.app.Kernels` and
-    :func:`service.worker.run_worker`). The imports and the kernels' loading make some 230,000
-    objects that live as long as the process, and about 1,700 that are cyclic garbage; collecting
-    while they grew walked them four times in full, 0.4 of the 1.9 s the API's imports took.
-
-    Only when the kernel cache is complete as the process starts: one started by hand on an
-    incomplete cache compiles the kernels itself, which makes millions of objects in cycles that
-    would stay until the end of its start-up (a compiling process peaked at 872 MiB without
-    collections, 524 with them)."""
-    from service.run import kernels_compiled
-
-    if kernels_compiled():
-        gc.disable()
 
 
 def _stop_while_starting(logger: str) -> None:

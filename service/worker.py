@@ -5,7 +5,6 @@ the worker: it backs off and tries again (and gives a running job back, see
 
 from __future__ import annotations
 
-import gc
 import logging
 import os
 import random
@@ -20,6 +19,7 @@ from sqlalchemy.engine import make_url
 from engine import warm_up
 from engine.tuning import MapFn, dask_map
 from service import queue
+from service.infra.collector import resume_collector
 from service.infra.db import Database, is_database_fault, unavailable_reason
 from service.infra.logs import JOB_ID
 from service.infra.settings import Settings
@@ -40,8 +40,8 @@ def run_worker(
 ) -> int:
     """Poll loop. Returns the number of jobs processed. ``freeze_heap`` (``spacearm worker``, a
     process of its own): once the kernels are in, keep the start-up's objects out of full garbage
-    collections (:func:`gc.freeze`) and turn the collector on (it was off for the start-up:
-    :func:`service.cli.pause_collector`)."""
+    collections and turn the collector on (:mod:`service.infra.collector`: it was off for the
+    start-up)."""
     stop = shutdown or threading.Event()
     if shutdown is None and threading.current_thread() is threading.main_thread():
 
@@ -55,8 +55,7 @@ def run_worker(
     seconds = warm_up()  # load (or compile) the kernels before claiming a job
     log.info("engine kernels ready in %.1f s", seconds)
     if freeze_heap:
-        gc.freeze()
-        gc.enable()
+        resume_collector()
     db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
     me = worker_id()
     dask_client = None
