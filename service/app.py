@@ -21,7 +21,7 @@ import engine
 from engine.kernels.jit import park_linking_modules
 from service import errors, openapi
 from service.infra import observability, security
-from service.infra.admission import Admission
+from service.infra.admission import INLINE_MAX_COST, Admission
 from service.infra.collector import resume_collector
 from service.infra.db import Database
 from service.infra.metrics import process_exited
@@ -186,7 +186,11 @@ def create_app(settings: Settings | None = None, *, freeze_heap: bool = False) -
         app.state.health_limiter = anyio.CapacityLimiter(2)
         app.state.settings = settings
         slots = settings.plan_slots()
-        app.state.plan_admission = Admission("plans", slots, settings.plan_queue, settings.plan_queue_timeout_s)
+        # Cheap plans run on the event loop (INLINE_MAX_COST) with SQLite, and only when a database
+        # connection is left for the loop beside the threads': PostgreSQL's round trips, and its
+        # connection timeouts when the server is gone, stay off the loop.
+        inline = INLINE_MAX_COST if db.path is not None and settings.pool_size() > settings.api_threads else 0.0
+        app.state.plan_admission = Admission("plans", slots, settings.plan_queue, settings.plan_queue_timeout_s, inline)
         app.state.figure_admission = Admission("figure renders", slots, 4 * slots, settings.plan_queue_timeout_s)
         app.state.job_feeds = JobFeeds(db, job_events.POLL_S, settings.max_event_streams)
         app.state.login_limiter = AddressLimiter("login", settings.login_attempts_per_minute)

@@ -17,17 +17,20 @@ its pooled connections, so it recovers by itself when the fault ends.
 
 from __future__ import annotations
 
+import asyncio
+import contextvars
 import functools
 import hashlib
 import logging
 import os
 import random
+import sqlite3
 import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar
+from typing import Any, ParamSpec, TypeVar, cast
 from urllib.parse import quote, unquote
 
 from sqlalchemy import Engine, create_engine, event, text
@@ -104,6 +107,42 @@ def unavailable_reason(exc: BaseException) -> str | None:
     if exc.connection_invalidated:
         return "the database connection was lost"
     return None
+
+
+#: Set while work runs on the event loop (:func:`elsewhere_if_locked`): a SQLite session there does
+#: not wait for another writer's lock.
+_NO_WAIT = contextvars.ContextVar("spacearm_db_no_wait", default=False)
+
+
+class WouldWaitError(Exception):
+    """Work on the event loop found the database locked by another writer (a retention sweep, a
+    migration): ``then`` is the rest of it, to run where waiting blocks nothing (the thread pool)."""
+
+    def __init__(self, then: Callable[[], Any]) -> None:
+        super().__init__("the database is locked by another writer")
+        self.then = then
+
+
+@contextmanager
+def elsewhere_if_locked(then: Callable[[], Any]) -> Iterator[None]:
+    """Within, on the event loop's thread: SQLite sessions do not wait for the write lock (the loop
+    would stop for up to the busy timeout, ``/healthz`` with it); if it is taken,
+    :class:`WouldWaitError` with ``then`` instead (whose own sessions wait as usual). Elsewhere (a
+    thread of the pool): nothing changes."""
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:  # no loop runs in this thread
+        yield
+        return
+    token = _NO_WAIT.set(True)
+    try:
+        yield
+    except OperationalError as exc:
+        if is_locked(exc):
+            raise WouldWaitError(then) from exc
+        raise
+    finally:
+        _NO_WAIT.reset(token)
 
 
 def retry_locked(fn: Callable[P, T]) -> Callable[P, T]:
@@ -224,6 +263,7 @@ class Database:
     ) -> None:
         self.url = url
         self.path = sqlite_path(url)
+        self.busy_timeout_ms = busy_timeout_ms
         self.engine = make_engine(
             url, busy_timeout_ms, pool_size=pool_size, max_overflow=max_overflow, pool_timeout_s=pool_timeout_s
         )
@@ -273,12 +313,23 @@ class Database:
     def session(self) -> Iterator[Session]:
         self.check_file()
         with self.sessionmaker() as session:
+            pooled = raw = None
+            if self.path is not None and _NO_WAIT.get():  # see elsewhere_if_locked
+                pooled = session.connection().connection
+                raw = cast(sqlite3.Connection, pooled.driver_connection)
+                raw.execute("PRAGMA busy_timeout=0")
             try:
                 yield session
                 session.commit()
             except BaseException:
                 session.rollback()
                 raise
+            finally:
+                if pooled is not None and raw is not None:
+                    try:
+                        raw.execute(f"PRAGMA busy_timeout={int(self.busy_timeout_ms)}")
+                    except sqlite3.Error:  # not back in the pool without its timeout
+                        pooled.invalidate()
 
     def write(self, build: Callable[[Session], T], *, exclusive: str | None = None) -> T:
         """Run ``build`` in its own session and commit, retried when the database is locked.

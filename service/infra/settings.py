@@ -60,7 +60,8 @@ class Settings(BaseSettings):
         default=None,
         ge=1,
         le=512,
-        description="database connections per API process; default: api_threads, so a handler never waits for one",
+        description="database connections per API process; default: api_threads + 1 (one for the cheap plans the event "
+        "loop runs), so a handler never waits for one",
     )
     db_pool_timeout_s: float = Field(
         default=5.0, gt=0, le=300, description="how long a request waits for a database connection before a 503"
@@ -140,7 +141,7 @@ class Settings(BaseSettings):
         return value.lower() if isinstance(value, str) else value
 
     def pool_size(self) -> int:
-        return self.db_pool_size or self.api_threads
+        return self.db_pool_size or self.api_threads + 1
 
     def plan_slots(self) -> int:
         return self.max_concurrent_plans or max(1, os.cpu_count() or 1)

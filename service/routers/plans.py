@@ -1,7 +1,9 @@
 """Synchronous plans (:mod:`service.usecases.plans`). A plan request waits for a slot of the plan admission
 (:mod:`service.infra.admission`: a few plans at once, a short queue, then 503 with ``Retry-After``) on
-the event loop, then runs in the thread pool (the engine's kernels release the GIL, so plans run
-in parallel on every core). Reads are plain ``def`` handlers in the thread pool.
+the event loop, then runs there if it is cheap (a paper plan: the hand-off to a thread cost more
+than a third of the request; the store goes to a thread only if another writer holds the database),
+else in the thread pool (the engine's kernels release the GIL, so plans run in parallel on every
+core). Reads are plain ``def`` handlers in the thread pool.
 
 Plan bodies are written once, by orjson from the planner's arrays (:mod:`service.infra.jsonio`): the
 trajectory is neither copied into Python lists nor validated again on the way out. Trajectories
@@ -31,7 +33,7 @@ from service.deps import (
 )
 from service.errors import NotAcceptableError, responses
 from service.infra.admission import plan_cost
-from service.infra.db import Database
+from service.infra.db import Database, elsewhere_if_locked
 from service.schemas.methods import MethodName
 from service.schemas.plans import PathTypeName, PlanList, PlanOut, PlanRequest, PlanRerun, Trajectory
 from service.schemas.trajectories import MEDIA_TYPES, RosJointTrajectory, TrajectoryFormat
@@ -78,11 +80,16 @@ async def create_plan(
     sections = plans.parse_sections(fields)
     db: Database = request.app.state.db
 
-    def work() -> Response:
-        asked = plans.request_of(db, body)
-        row = plans.store(db, settings, planned := plans.compute(db, settings, asked))
+    def answer(asked: PlanRequest, planned: plans.Planned) -> Response:
+        row = plans.store(db, settings, planned)
         content = plans.body_json(plans.summary(row, asked), sections, planned.record, row.replay)
         return Response(content, status_code=201, media_type="application/json", headers={"Location": f"/v1/plans/{row.id}"})
+
+    def work() -> Response:
+        asked = plans.request_of(db, body)
+        planned = plans.compute(db, settings, asked)
+        with elsewhere_if_locked(lambda: answer(asked, planned)):  # matters on the event loop only
+            return answer(asked, planned)
 
     return await run_admitted(request, work, cost=plan_cost(body))
 

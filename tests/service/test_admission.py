@@ -7,17 +7,25 @@ while /healthz answers."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import sqlite3
 import statistics
 import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import httpx
 import pytest
+from sqlalchemy import text
+from sqlalchemy.exc import OperationalError
 
-from service.infra.admission import REQUEST_OVERHEAD, Admission, OverloadedError, plan_cost
+from service.deps import run_admitted
+from service.infra.admission import DEFAULT_COST, INLINE_MAX_COST, REQUEST_OVERHEAD, Admission, OverloadedError, plan_cost
+from service.infra.db import Database, WouldWaitError, elsewhere_if_locked
 from tests.service.conftest import PAPER_TASK, Stack
 
 TUNED = {"name": "adaptive", "params": {"lambda_max": 0.04, "epsilon": 0.37}}
@@ -34,6 +42,68 @@ def test_a_plans_cost_is_its_joint_steps() -> None:
     inline = {**paper, "replay": False, "robot": {"links": [{}] * 7}}
     assert plan_cost(inline) == REQUEST_OVERHEAD + 61 * 7
     assert plan_cost({"task": {"dt_s": "x"}}) == REQUEST_OVERHEAD + 61 * 6  # unreadable: validation refuses it
+    # a stored plan again: its task is not known before it is read, whatever the patch says
+    assert plan_cost({"from_plan_id": "p", "task": {"dt_s": 0.25}, "replay": False}) == DEFAULT_COST
+
+
+def test_cheap_work_runs_on_the_event_loop_and_the_rest_in_the_thread_pool() -> None:
+    """A paper plan (replayed or not) runs on the loop's thread; a 20,000-step plan, a stored plan
+    again and work of the default cost run in the thread pool, all under the admission."""
+    paper = {"robot_id": "table1", "task": PAPER_TASK, "method": TUNED}
+    long_task = {**paper, "task": {**PAPER_TASK, "dt_s": 15.0 / 20000}}
+    costs = {
+        "paper": plan_cost({**paper, "replay": False}),
+        "paper replayed": plan_cost(paper),
+        "long": plan_cost(long_task),
+        "rerun": plan_cost({"from_plan_id": "p"}),
+        "default": DEFAULT_COST,
+    }
+
+    async def scenario() -> dict[str, bool]:
+        admission = Admission("plans", slots=2, queue=10, wait_s=10.0, inline_max_cost=INLINE_MAX_COST)
+        request = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(plan_admission=admission)))
+        loop_thread = threading.get_ident()
+        on_loop = {}
+        for name, cost in costs.items():
+
+            def work() -> int:
+                assert admission.running == 1  # under the admission either way
+                return threading.get_ident()
+
+            on_loop[name] = await run_admitted(request, work, cost=cost) == loop_thread  # type: ignore[arg-type]
+        return on_loop
+
+    assert costs["paper replayed"] <= INLINE_MAX_COST < costs["long"]
+    assert asyncio.run(scenario()) == {"paper": True, "paper replayed": True, "long": False, "rerun": False, "default": False}
+
+
+def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
+    """Cheap requests that reach their work in one pass of the event loop run one per pass, so
+    the loop polls its sockets (``/healthz``) between them, not after the whole burst."""
+
+    async def scenario() -> tuple[list[int], int]:
+        loop = asyncio.get_running_loop()
+        admission = Admission("plans", slots=2, queue=100, wait_s=10.0, inline_max_cost=INLINE_MAX_COST)
+        request = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(plan_admission=admission)))
+        passes = 0
+
+        def count_pass() -> None:  # one call per pass of the loop: it schedules itself for the next
+            nonlocal passes
+            passes += 1
+            loop.call_soon(count_pass)
+
+        count_pass()
+        started: list[int] = []
+
+        async def plan() -> None:
+            await run_admitted(request, lambda: started.append(passes), cost=REQUEST_OVERHEAD)  # type: ignore[arg-type]
+
+        await asyncio.gather(*(plan() for _ in range(6)))  # six tasks, all ready in the same pass
+        return started, admission.running
+
+    started, running = asyncio.run(scenario())
+    assert len(started) == 6 and running == 0
+    assert started == sorted(set(started)), started  # each in a pass of its own
 
 
 def test_the_admission_refuses_by_estimated_wait_with_an_honest_retry_after() -> None:
@@ -159,3 +229,73 @@ def test_a_burst_of_long_plans_is_served_as_far_as_the_timeout_allows(make_stack
             assert "of work ahead" in detail or "ran slower than estimated" in detail, detail
     # most are refused at once, by the estimate, not after waiting
     assert sum("of work ahead" in r.text for r in answers if r.status_code == 503) >= statuses.count(503) // 2
+
+
+def test_on_the_event_loop_a_locked_database_is_not_waited_for(tmp_path: Path) -> None:
+    """Within ``elsewhere_if_locked`` a SQLite write that finds another writer's lock raises at
+    once, carrying the rest of the work; the pooled connection gets its busy timeout back."""
+    path = tmp_path / "locked.db"
+    with contextlib.closing(sqlite3.connect(path)) as setup:
+        setup.execute("CREATE TABLE t (x INTEGER)")
+    db = Database(f"sqlite:///{path}", busy_timeout_ms=30_000, pool_size=1, max_overflow=0)
+    other = sqlite3.connect(path, isolation_level=None)
+    other.execute("BEGIN IMMEDIATE")  # another writer holds the lock
+
+    def write(value: int) -> None:
+        with db.session() as session:
+            session.execute(text("INSERT INTO t VALUES (:x)"), {"x": value})
+
+    async def on_the_loop() -> None:
+        started = time.monotonic()
+        with pytest.raises(WouldWaitError) as locked, elsewhere_if_locked(lambda: "the rest"):
+            write(1)
+        assert time.monotonic() - started < 10.0  # not the 30 s busy timeout
+        assert locked.value.then() == "the rest"
+
+    try:
+        asyncio.run(on_the_loop())
+        # without an event loop (a thread of the pool) a session waits for the lock as usual: here
+        # for a short busy timeout, then SQLite's "locked" error, not WouldWaitError
+        short = Database(f"sqlite:///{path}", busy_timeout_ms=200)
+        with elsewhere_if_locked(lambda: None), pytest.raises(OperationalError, match="locked"), short.session() as session:
+            session.execute(text("INSERT INTO t VALUES (3)"))
+        short.engine.dispose()
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
+    with db.session() as session:  # the same pooled connection, waiting as usual again
+        assert session.execute(text("PRAGMA busy_timeout")).scalar() == 30_000
+        session.execute(text("INSERT INTO t VALUES (2)"))
+    with db.session() as session:
+        assert session.execute(text("SELECT x FROM t")).scalars().all() == [2]
+    db.engine.dispose()
+
+
+def test_a_cheap_plan_waits_for_a_locked_database_off_the_event_loop(make_stack: Callable[..., Stack]) -> None:
+    """A paper plan (run on the event loop) while another process holds SQLite's write lock: it
+    waits for the lock in a thread, so /healthz answers meanwhile; then it is stored."""
+    stack = make_stack()
+    stack.start_api()
+    body = {"robot_id": "table1", "task": PAPER_TASK, "method": TUNED, "replay": False}
+    with stack.client() as c:
+        assert c.post("/v1/plans?fields=", json=body).status_code == 201  # robot and kernels warm
+    other = sqlite3.connect(stack.db_path, isolation_level=None)
+    other.execute("BEGIN IMMEDIATE")
+    with ThreadPoolExecutor(1) as pool:
+        try:
+            with stack.client() as c:
+                pending = pool.submit(lambda: c.post("/v1/plans?fields=", json=body, timeout=60))
+                time.sleep(0.5)
+                assert not pending.done()  # waiting for the lock
+                with stack.client() as probe:
+                    assert probe.get("/healthz", timeout=5).status_code == 200  # the loop is free
+                assert not pending.done()
+                other.execute("ROLLBACK")
+                answer = pending.result(timeout=60)
+        finally:
+            if other.in_transaction:
+                other.execute("ROLLBACK")
+            other.close()
+    assert answer.status_code == 201, answer.text
+    with stack.client() as c:
+        assert c.get("/v1/plans", params={"limit": 1}).json()["total"] == 2
