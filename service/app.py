@@ -187,9 +187,10 @@ def create_app(settings: Settings | None = None, *, freeze_heap: bool = False) -
         app.state.settings = settings
         slots = settings.plan_slots()
         # Cheap plans run on the event loop (INLINE_MAX_COST) with SQLite, and only when a database
-        # connection is left for the loop beside the threads': PostgreSQL's round trips, and its
-        # connection timeouts when the server is gone, stay off the loop.
-        inline = INLINE_MAX_COST if db.path is not None and settings.pool_size() > settings.api_threads else 0.0
+        # connection is left for the loop beside the threads' and the retention sweep's:
+        # PostgreSQL's round trips, and its connection timeouts when the server is gone, stay off
+        # the loop.
+        inline = INLINE_MAX_COST if db.path is not None and settings.pool_size() > settings.api_threads + 1 else 0.0
         app.state.plan_admission = Admission("plans", slots, settings.plan_queue, settings.plan_queue_timeout_s, inline)
         app.state.figure_admission = Admission("figure renders", slots, 4 * slots, settings.plan_queue_timeout_s)
         app.state.job_feeds = JobFeeds(db, job_events.POLL_S, settings.max_event_streams)

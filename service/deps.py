@@ -21,7 +21,8 @@ from typing_extensions import TypeAliasType
 from service import figures
 from service.errors import MAX_OFFSET, ApiError, NotAcceptableError
 from service.infra.admission import DEFAULT_COST
-from service.infra.db import Database, WouldWaitError
+from service.infra.db import Database
+from service.infra.loop import HandOff
 from service.infra.settings import Settings
 from service.schemas.common import ID_PATTERN, ID_REGEX
 from service.schemas.plans import PLAN_SECTIONS
@@ -142,17 +143,18 @@ async def run_admitted(request: Request, work: Callable[[], T], what: str | None
     """Run ``work()`` once the plan admission lets it in (``what`` names the work in a 503, plans
     by default; ``cost``: its estimated joint-steps, see :mod:`service.infra.admission`): on the
     event loop (in its turn, :meth:`~service.infra.admission.Admission.loop_turn`) if it costs at
-    most the admission's ``inline_max_cost``, else in the thread pool. Work on the loop that finds
-    the database locked hands its rest to the thread pool
-    (:func:`~service.infra.db.elsewhere_if_locked`)."""
-    admission = request.app.state.plan_admission
+    most the admission's ``inline_max_cost`` and the kernels are loaded, else in the thread pool.
+    Work on the loop may hand its rest to the thread pool (:class:`~service.infra.loop.HandOff`)."""
+    state = request.app.state
+    admission = state.plan_admission
     async with admission.slot(what, cost):
-        if cost <= admission.inline_max_cost:
+        # not while the kernels load: the loop would wait for numba's compiler lock, /healthz too
+        if cost <= admission.inline_max_cost and state.kernels.state == "ok":
             try:
                 async with admission.loop_turn():
                     return work()
-            except WouldWaitError as locked:  # the rest waits for the database in a thread
-                then: Callable[[], T] = locked.then
+            except HandOff as rest:  # a locked database, a larger task than the request said
+                then: Callable[[], T] = rest.then
                 return await run_in_threadpool(then)
         return await run_in_threadpool(work)
 

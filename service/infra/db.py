@@ -17,7 +17,6 @@ its pooled connections, so it recovers by itself when the fault ends.
 
 from __future__ import annotations
 
-import asyncio
 import contextvars
 import functools
 import hashlib
@@ -40,6 +39,7 @@ from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.infra import jsonio
+from service.infra.loop import HandOff, on_event_loop
 from service.infra.reserve import DiskReserve
 
 P = ParamSpec("P")
@@ -114,13 +114,12 @@ def unavailable_reason(exc: BaseException) -> str | None:
 _NO_WAIT = contextvars.ContextVar("spacearm_db_no_wait", default=False)
 
 
-class WouldWaitError(Exception):
+class WouldWaitError(HandOff):
     """Work on the event loop found the database locked by another writer (a retention sweep, a
     migration): ``then`` is the rest of it, to run where waiting blocks nothing (the thread pool)."""
 
     def __init__(self, then: Callable[[], Any]) -> None:
-        super().__init__("the database is locked by another writer")
-        self.then = then
+        super().__init__(then, "the database is locked by another writer")
 
 
 @contextmanager
@@ -129,9 +128,7 @@ def elsewhere_if_locked(then: Callable[[], Any]) -> Iterator[None]:
     would stop for up to the busy timeout, ``/healthz`` with it); if it is taken,
     :class:`WouldWaitError` with ``then`` instead (whose own sessions wait as usual). Elsewhere (a
     thread of the pool): nothing changes."""
-    try:
-        asyncio.get_running_loop()
-    except RuntimeError:  # no loop runs in this thread
+    if not on_event_loop():
         yield
         return
     token = _NO_WAIT.set(True)
@@ -313,23 +310,38 @@ class Database:
     def session(self) -> Iterator[Session]:
         self.check_file()
         with self.sessionmaker() as session:
-            pooled = raw = None
-            if self.path is not None and _NO_WAIT.get():  # see elsewhere_if_locked
-                pooled = session.connection().connection
-                raw = cast(sqlite3.Connection, pooled.driver_connection)
-                raw.execute("PRAGMA busy_timeout=0")
+            waiting = self._no_wait(session) if self.path is not None and _NO_WAIT.get() else None
             try:
                 yield session
+                if waiting is not None:
+                    waiting()
                 session.commit()
             except BaseException:
+                if waiting is not None:
+                    waiting()
                 session.rollback()
                 raise
-            finally:
-                if pooled is not None and raw is not None:
-                    try:
-                        raw.execute(f"PRAGMA busy_timeout={int(self.busy_timeout_ms)}")
-                    except sqlite3.Error:  # not back in the pool without its timeout
-                        pooled.invalidate()
+
+    def _no_wait(self, session: Session) -> Callable[[], None]:
+        """Set the busy timeout of ``session``'s SQLite connection to 0 (see
+        :func:`elsewhere_if_locked`); returns what sets it back (once), to be called while the
+        session still holds the connection: its commit or rollback gives it back to the pool."""
+        pooled = session.connection().connection
+        raw = cast(sqlite3.Connection, pooled.driver_connection)
+        raw.execute("PRAGMA busy_timeout=0")
+        done = False
+
+        def restore() -> None:
+            nonlocal done
+            if done:
+                return
+            done = True
+            try:
+                raw.execute(f"PRAGMA busy_timeout={int(self.busy_timeout_ms)}")
+            except sqlite3.Error:  # not back in the pool without its timeout
+                pooled.invalidate()
+
+        return restore
 
     def write(self, build: Callable[[Session], T], *, exclusive: str | None = None) -> T:
         """Run ``build`` in its own session and commit, retried when the database is locked.

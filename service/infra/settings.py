@@ -54,14 +54,17 @@ class Settings(BaseSettings):
         "plan admission, rate limits and event-stream limits are per process)",
     )
     api_threads: int = Field(
-        default=16, ge=2, le=256, description="threads of the API's pool for blocking handlers (database reads, plans, figures)"
+        default=16,
+        ge=2,
+        le=256,
+        description="threads of the API's pool for blocking handlers (database reads, plans but the cheapest, figures)",
     )
     db_pool_size: int | None = Field(
         default=None,
         ge=1,
         le=512,
-        description="database connections per API process; default: api_threads + 1 (one for the cheap plans the event "
-        "loop runs), so a handler never waits for one",
+        description="database connections per API process; default: api_threads + 2 (one for the retention sweep, one "
+        "for the cheap plans the event loop runs), so a handler never waits for one",
     )
     db_pool_timeout_s: float = Field(
         default=5.0, gt=0, le=300, description="how long a request waits for a database connection before a 503"
@@ -141,7 +144,7 @@ class Settings(BaseSettings):
         return value.lower() if isinstance(value, str) else value
 
     def pool_size(self) -> int:
-        return self.db_pool_size or self.api_threads + 1
+        return self.db_pool_size or self.api_threads + 2
 
     def plan_slots(self) -> int:
         return self.max_concurrent_plans or max(1, os.cpu_count() or 1)

@@ -1,9 +1,10 @@
 """Synchronous plans (:mod:`service.usecases.plans`). A plan request waits for a slot of the plan admission
 (:mod:`service.infra.admission`: a few plans at once, a short queue, then 503 with ``Retry-After``) on
 the event loop, then runs there if it is cheap (a paper plan: the hand-off to a thread cost more
-than a third of the request; the store goes to a thread only if another writer holds the database),
-else in the thread pool (the engine's kernels release the GIL, so plans run in parallel on every
-core). Reads are plain ``def`` handlers in the thread pool.
+than a third of the request; the rest goes to a thread if the prepared task is larger than the
+body said, or if another writer holds the database), else in the thread pool (the engine's kernels
+release the GIL, so plans run in parallel on every core). Reads are plain ``def`` handlers in the
+thread pool.
 
 Plan bodies are written once, by orjson from the planner's arrays (:mod:`service.infra.jsonio`): the
 trajectory is neither copied into Python lists nor validated again on the way out. Trajectories
@@ -12,6 +13,7 @@ sections."""
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Body, Query, Request, Response, status
@@ -34,6 +36,7 @@ from service.deps import (
 from service.errors import NotAcceptableError, responses
 from service.infra.admission import plan_cost
 from service.infra.db import Database, elsewhere_if_locked
+from service.infra.loop import HandOff, on_event_loop
 from service.schemas.methods import MethodName
 from service.schemas.plans import PathTypeName, PlanList, PlanOut, PlanRequest, PlanRerun, Trajectory
 from service.schemas.trajectories import MEDIA_TYPES, RosJointTrajectory, TrajectoryFormat
@@ -87,7 +90,13 @@ async def create_plan(
 
     def work() -> Response:
         asked = plans.request_of(db, body)
-        planned = plans.compute(db, settings, asked)
+        # on the event loop, a task larger than its request said is planned in a thread
+        within = request.app.state.plan_admission.inline_max_cost if on_event_loop() else math.inf
+        try:
+            planned = plans.compute(db, settings, asked, within=within)
+        except HandOff as larger:
+            plan = larger.then  # the name `larger` is gone after the except clause
+            raise HandOff(lambda: answer(asked, plan())) from None
         with elsewhere_if_locked(lambda: answer(asked, planned)):  # matters on the event loop only
             return answer(asked, planned)
 

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
 from pydantic import ValidationError
@@ -33,7 +35,9 @@ from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.uncertainty import Uncertainty
 from service.errors import ApiValidationError, NotFoundError, body_invalid
 from service.infra import jsonio
+from service.infra.admission import REQUEST_OVERHEAD
 from service.infra.db import Database
+from service.infra.loop import HandOff
 from service.infra.lru import Lru
 from service.infra.metrics import count_plan
 from service.infra.quota import check_quota
@@ -278,8 +282,24 @@ def prepare(db: Database | None, body: PlanRequest) -> Prepared:
     return Prepared(robot_id, model, setup, inverse, uncertainty)
 
 
-#: Threads for the executed trajectory's replay beside the planned one (:func:`finish`).
-_REPLAYS = ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1), thread_name_prefix="spacearm-replay")
+T = TypeVar("T")
+
+#: Threads for the executed trajectory's replay beside the planned one (:func:`finish`), and how
+#: many of them are free.
+_REPLAY_THREADS = max(1, os.cpu_count() or 1)
+_REPLAYS = ThreadPoolExecutor(max_workers=_REPLAY_THREADS, thread_name_prefix="spacearm-replay")
+_REPLAYS_FREE = threading.BoundedSemaphore(_REPLAY_THREADS)
+
+
+def _beside(fn: Callable[..., T], *args: Any) -> Callable[[], T]:
+    """Start ``fn(*args)`` in a replay thread if one is free (else it runs here when asked: a
+    request, on the event loop or not, never waits behind other requests' replays); returns what
+    gives its result."""
+    if not _REPLAYS_FREE.acquire(blocking=False):
+        return lambda: fn(*args)
+    future = _REPLAYS.submit(fn, *args)
+    future.add_done_callback(lambda _: _REPLAYS_FREE.release())
+    return future.result
 
 
 def finish(
@@ -292,8 +312,8 @@ def finish(
         replayed = ReplayOut.skipped(skipped)
     elif body.replay:
         # the two replays at once: their integrators release the GIL (a paper plan: 1.9 and 1.2 ms)
-        executed = _REPLAYS.submit(replay_executed, prepared.model, result)
-        replayed = ReplayOut.from_engine(replay(prepared.model, result), executed.result())
+        executed = _beside(replay_executed, prepared.model, result)
+        replayed = ReplayOut.from_engine(replay(prepared.model, result), executed())
     record = record_of(result, prepared.model)
     robust: Robustness | None = None
     if prepared.uncertainty is not None:
@@ -314,12 +334,30 @@ def finish(
     return Planned(row, record, prepared.model.joint_names)
 
 
-def compute(db: Database | None, settings: Settings, body: PlanRequest) -> Planned:
-    """Plan (and replay) a request (``db`` None: without a database, see :func:`prepare`)."""
+def joint_steps(prepared: Prepared, body: PlanRequest) -> float:
+    """A prepared request's cost in joint-steps, as :func:`~service.infra.admission.plan_cost`
+    estimates it from the body but with the task's real samples and the robot's real joints;
+    infinite with collision geometry or uncertainty (the steps do not say their cost)."""
+    if prepared.uncertainty is not None or prepared.setup.geometry.active:
+        return math.inf
+    runs = 2.0 if body.replay else 1.0
+    return REQUEST_OVERHEAD + runs * (prepared.setup.task.n_steps + 1) * prepared.model.n_joints
+
+
+def compute(db: Database | None, settings: Settings, body: PlanRequest, *, within: float = math.inf) -> Planned:
+    """Plan (and replay) a request (``db`` None: without a database, see :func:`prepare`).
+    ``within``: the most joint-steps (:func:`joint_steps`) the plan may take here (on the event
+    loop); a larger one raises :class:`~service.infra.loop.HandOff` with the plan as its rest."""
     started = time.perf_counter()
     prepared = prepare(db, body)
-    result = run_plan(prepared.setup, prepared.inverse)
-    return finish(body, prepared, result, settings, started, jsonio.clean(body.stored()))
+
+    def rest() -> Planned:
+        result = run_plan(prepared.setup, prepared.inverse)
+        return finish(body, prepared, result, settings, started, jsonio.clean(body.stored()))
+
+    if joint_steps(prepared, body) > within:
+        raise HandOff(rest, "the task is larger than its request said")
+    return rest()
 
 
 def compute_shortest(db: Database, settings: Settings, body: ShortestDurationRequest) -> tuple[Planned, DurationSearchOut]:

@@ -26,6 +26,10 @@ from sqlalchemy.exc import OperationalError
 from service.deps import run_admitted
 from service.infra.admission import DEFAULT_COST, INLINE_MAX_COST, REQUEST_OVERHEAD, Admission, OverloadedError, plan_cost
 from service.infra.db import Database, WouldWaitError, elsewhere_if_locked
+from service.infra.loop import HandOff
+from service.infra.settings import Settings
+from service.schemas.plans import PlanRequest
+from service.usecases import plans
 from tests.service.conftest import PAPER_TASK, Stack
 
 TUNED = {"name": "adaptive", "params": {"lambda_max": 0.04, "epsilon": 0.37}}
@@ -46,6 +50,13 @@ def test_a_plans_cost_is_its_joint_steps() -> None:
     assert plan_cost({"from_plan_id": "p", "task": {"dt_s": 0.25}, "replay": False}) == DEFAULT_COST
 
 
+def fake_request(admission: Admission, kernels: str = "ok") -> Any:
+    """What :func:`run_admitted` reads of a request: the app's admission and kernels' state."""
+    return SimpleNamespace(
+        app=SimpleNamespace(state=SimpleNamespace(plan_admission=admission, kernels=SimpleNamespace(state=kernels)))
+    )
+
+
 def test_cheap_work_runs_on_the_event_loop_and_the_rest_in_the_thread_pool() -> None:
     """A paper plan (replayed or not) runs on the loop's thread; a 20,000-step plan, a stored plan
     again and work of the default cost run in the thread pool, all under the admission."""
@@ -61,7 +72,7 @@ def test_cheap_work_runs_on_the_event_loop_and_the_rest_in_the_thread_pool() -> 
 
     async def scenario() -> dict[str, bool]:
         admission = Admission("plans", slots=2, queue=10, wait_s=10.0, inline_max_cost=INLINE_MAX_COST)
-        request = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(plan_admission=admission)))
+        request = fake_request(admission)
         loop_thread = threading.get_ident()
         on_loop = {}
         for name, cost in costs.items():
@@ -70,11 +81,57 @@ def test_cheap_work_runs_on_the_event_loop_and_the_rest_in_the_thread_pool() -> 
                 assert admission.running == 1  # under the admission either way
                 return threading.get_ident()
 
-            on_loop[name] = await run_admitted(request, work, cost=cost) == loop_thread  # type: ignore[arg-type]
+            on_loop[name] = await run_admitted(request, work, cost=cost) == loop_thread
         return on_loop
 
     assert costs["paper replayed"] <= INLINE_MAX_COST < costs["long"]
     assert asyncio.run(scenario()) == {"paper": True, "paper replayed": True, "long": False, "rerun": False, "default": False}
+
+
+def test_work_on_the_event_loop_hands_its_rest_to_the_thread_pool_and_waits_for_the_kernels() -> None:
+    """Cheap work that raises HandOff has its rest run in a thread, its answer the request's; while
+    the kernels load (numba's compiler lock), cheap work runs in the thread pool too."""
+
+    async def scenario() -> tuple[list[bool], str, bool]:
+        loop_thread = threading.get_ident()
+        admission = Admission("plans", slots=2, queue=10, wait_s=10.0, inline_max_cost=INLINE_MAX_COST)
+        threads: list[bool] = []
+
+        def rest() -> str:
+            threads.append(threading.get_ident() == loop_thread)
+            return "the rest's answer"
+
+        def work() -> str:
+            threads.append(threading.get_ident() == loop_thread)
+            raise HandOff(rest)
+
+        answer = await run_admitted(fake_request(admission), work, cost=REQUEST_OVERHEAD)
+        loading = await run_admitted(fake_request(admission, "loading"), threading.get_ident, cost=REQUEST_OVERHEAD)
+        return threads, answer, loading == loop_thread
+
+    threads, answer, loading_on_loop = asyncio.run(scenario())
+    assert threads == [True, False] and answer == "the rest's answer"
+    assert not loading_on_loop
+
+
+def test_a_task_larger_than_its_request_said_is_planned_off_the_event_loop() -> None:
+    """A waypoints task timed by its own segments (150 s, 601 samples) looks like a paper plan to
+    the body's estimate; prepared, it is larger than the loop's budget, so the plan is the rest
+    handed off (and the same plan as without a budget)."""
+    task = {k: PAPER_TASK[k] for k in ("q0_deg", "dt_s", "joint_speed_limit_deg_s")}
+    pose = {"position_m": PAPER_TASK["target_position_m"], "attitude_quaternion": PAPER_TASK["target_attitude_quaternion"]}
+    task["path"] = {"type": "waypoints", "waypoints": [pose], "segment_durations_s": [150.0]}
+    body = {"robot_id": "table1", "task": task, "method": TUNED, "replay": False}
+    asked = PlanRequest.model_validate(body)
+    assert plan_cost(body) <= INLINE_MAX_COST < plans.joint_steps(plans.prepare(None, asked), asked)
+    with pytest.raises(HandOff) as larger:
+        plans.compute(None, Settings(), asked, within=INLINE_MAX_COST)
+    handed = larger.value.then()
+    assert handed.record["t"].shape == (601,)
+    assert handed.record["q"] == pytest.approx(plans.compute(None, Settings(), asked).record["q"], abs=0.0)
+    paper = PlanRequest.model_validate({"robot_id": "table1", "task": PAPER_TASK, "method": TUNED, "replay": False})
+    assert plans.joint_steps(plans.prepare(None, paper), paper) == plan_cost({"task": PAPER_TASK, "replay": False})
+    assert plans.compute(None, Settings(), paper, within=INLINE_MAX_COST).record["t"].shape == (61,)
 
 
 def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
@@ -84,7 +141,7 @@ def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
     async def scenario() -> tuple[list[int], int]:
         loop = asyncio.get_running_loop()
         admission = Admission("plans", slots=2, queue=100, wait_s=10.0, inline_max_cost=INLINE_MAX_COST)
-        request = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(plan_admission=admission)))
+        request = fake_request(admission)
         passes = 0
 
         def count_pass() -> None:  # one call per pass of the loop: it schedules itself for the next
@@ -96,7 +153,7 @@ def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
         started: list[int] = []
 
         async def plan() -> None:
-            await run_admitted(request, lambda: started.append(passes), cost=REQUEST_OVERHEAD)  # type: ignore[arg-type]
+            await run_admitted(request, lambda: started.append(passes), cost=REQUEST_OVERHEAD)
 
         await asyncio.gather(*(plan() for _ in range(6)))  # six tasks, all ready in the same pass
         return started, admission.running
