@@ -154,8 +154,7 @@ async def run_admitted(request: Request, work: Callable[[], T], what: str | None
                 async with admission.loop_turn():
                     return work()
             except HandOff as rest:  # a locked database, a larger task than the request said
-                then: Callable[[], T] = rest.then
-                return await run_in_threadpool(then)
+                work = rest.then  # run after the except clause: its errors do not carry the HandOff
         return await run_in_threadpool(work)
 
 

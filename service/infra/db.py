@@ -314,6 +314,7 @@ class Database:
             try:
                 yield session
                 if waiting is not None:
+                    session.flush()  # the ORM's pending writes too, before the timeout is back
                     waiting()
                 session.commit()
             except BaseException:

@@ -297,7 +297,11 @@ def _beside(fn: Callable[..., T], *args: Any) -> Callable[[], T]:
     gives its result."""
     if not _REPLAYS_FREE.acquire(blocking=False):
         return lambda: fn(*args)
-    future = _REPLAYS.submit(fn, *args)
+    try:
+        future = _REPLAYS.submit(fn, *args)
+    except RuntimeError:  # the executor is shut down (the process is stopping)
+        _REPLAYS_FREE.release()
+        return lambda: fn(*args)
     future.add_done_callback(lambda _: _REPLAYS_FREE.release())
     return future.result
 
