@@ -53,6 +53,12 @@ class OverloadedError(ApiError):
         )
 
 
+def work_cost(samples: float, joints: float, runs: float) -> float:
+    """Joint-steps of ``runs`` passes over ``samples`` samples of ``joints`` joints, with the
+    request's fixed :data:`REQUEST_OVERHEAD`."""
+    return REQUEST_OVERHEAD + runs * samples * joints
+
+
 def plan_cost(body: Mapping[str, Any]) -> float:
     """A plan request's cost in joint-steps, from its JSON body before it is validated: the task's
     steps (duration over ``dt_s``) times the robot's joints (an inline robot's links, else 6), twice
@@ -72,8 +78,8 @@ def plan_cost(body: Mapping[str, Any]) -> float:
         samples = int(uncertainty.get("samples", 64)) if isinstance(uncertainty, Mapping) else 0
         runs = (2.0 if body.get("replay", True) else 1.0) + 2.0 * max(0, min(samples, 1024))
     except (AttributeError, TypeError, ValueError, OverflowError):
-        return REQUEST_OVERHEAD + 61 * 6
-    return REQUEST_OVERHEAD + runs * steps * joints
+        return work_cost(61, 6, 1.0)
+    return work_cost(steps, joints, runs)
 
 
 class Admission:

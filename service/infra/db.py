@@ -310,39 +310,31 @@ class Database:
     def session(self) -> Iterator[Session]:
         self.check_file()
         with self.sessionmaker() as session:
-            waiting = self._no_wait(session) if self.path is not None and _NO_WAIT.get() else None
+            no_wait = self.path is not None and _NO_WAIT.get()  # see elsewhere_if_locked
+            pooled = session.connection().connection if no_wait else None
+            if pooled is not None:
+                cast(sqlite3.Connection, pooled.driver_connection).execute("PRAGMA busy_timeout=0")
             try:
-                yield session
-                if waiting is not None:
-                    session.flush()  # the ORM's pending writes too, before the timeout is back
-                    waiting()
+                try:
+                    yield session
+                    if pooled is not None:
+                        session.flush()  # the ORM's pending writes too, before the timeout is back
+                finally:
+                    # back before the commit or rollback gives the connection back to the pool
+                    if pooled is not None:
+                        self._restore_busy_timeout(pooled)
                 session.commit()
             except BaseException:
-                if waiting is not None:
-                    waiting()
                 session.rollback()
                 raise
 
-    def _no_wait(self, session: Session) -> Callable[[], None]:
-        """Set the busy timeout of ``session``'s SQLite connection to 0 (see
-        :func:`elsewhere_if_locked`); returns what sets it back (once), to be called while the
-        session still holds the connection: its commit or rollback gives it back to the pool."""
-        pooled = session.connection().connection
-        raw = cast(sqlite3.Connection, pooled.driver_connection)
-        raw.execute("PRAGMA busy_timeout=0")
-        done = False
-
-        def restore() -> None:
-            nonlocal done
-            if done:
-                return
-            done = True
-            try:
-                raw.execute(f"PRAGMA busy_timeout={int(self.busy_timeout_ms)}")
-            except sqlite3.Error:  # not back in the pool without its timeout
-                pooled.invalidate()
-
-        return restore
+    def _restore_busy_timeout(self, pooled: Any) -> None:
+        """Give a pooled SQLite connection the engine's busy timeout again; one that refuses is
+        dropped from the pool (it must not go back without it)."""
+        try:
+            cast(sqlite3.Connection, pooled.driver_connection).execute(f"PRAGMA busy_timeout={int(self.busy_timeout_ms)}")
+        except sqlite3.Error:
+            pooled.invalidate()
 
     def write(self, build: Callable[[Session], T], *, exclusive: str | None = None) -> T:
         """Run ``build`` in its own session and commit, retried when the database is locked.

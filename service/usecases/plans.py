@@ -35,7 +35,7 @@ from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.uncertainty import Uncertainty
 from service.errors import ApiValidationError, NotFoundError, body_invalid
 from service.infra import jsonio
-from service.infra.admission import REQUEST_OVERHEAD
+from service.infra.admission import work_cost
 from service.infra.db import Database
 from service.infra.loop import HandOff
 from service.infra.lru import Lru
@@ -295,15 +295,15 @@ def _beside(fn: Callable[..., T], *args: Any) -> Callable[[], T]:
     """Start ``fn(*args)`` in a replay thread if one is free (else it runs here when asked: a
     request, on the event loop or not, never waits behind other requests' replays); returns what
     gives its result."""
-    if not _REPLAYS_FREE.acquire(blocking=False):
-        return lambda: fn(*args)
-    try:
-        future = _REPLAYS.submit(fn, *args)
-    except RuntimeError:  # the executor is shut down (the process is stopping)
-        _REPLAYS_FREE.release()
-        return lambda: fn(*args)
-    future.add_done_callback(lambda _: _REPLAYS_FREE.release())
-    return future.result
+    if _REPLAYS_FREE.acquire(blocking=False):
+        try:
+            future = _REPLAYS.submit(fn, *args)
+        except RuntimeError:  # the executor is shut down (the process is stopping)
+            _REPLAYS_FREE.release()
+        else:
+            future.add_done_callback(lambda _: _REPLAYS_FREE.release())
+            return future.result
+    return lambda: fn(*args)
 
 
 def finish(
@@ -344,8 +344,7 @@ def joint_steps(prepared: Prepared, body: PlanRequest) -> float:
     infinite with collision geometry or uncertainty (the steps do not say their cost)."""
     if prepared.uncertainty is not None or prepared.setup.geometry.active:
         return math.inf
-    runs = 2.0 if body.replay else 1.0
-    return REQUEST_OVERHEAD + runs * (prepared.setup.task.n_steps + 1) * prepared.model.n_joints
+    return work_cost(prepared.setup.task.n_steps + 1, prepared.model.n_joints, 2.0 if body.replay else 1.0)
 
 
 def compute(db: Database | None, settings: Settings, body: PlanRequest, *, within: float = math.inf) -> Planned:
