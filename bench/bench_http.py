@@ -1,7 +1,9 @@
 """HTTP benchmark: `POST /v1/plans` of the paper task against a live server, p50/p95 latency and
 plans per second with 1, 4 and 16 concurrent clients, replay false and true; the ratio of the
 replay-true p50 to the replay-false p50 (target: at most 2), and the first request after the
-server says it is ready against the steady state (target: at most 2).
+server says it is ready against the steady state (target: at most 2). Then reads with one
+client: `GET /v1/plans/{id}` of a stored paper plan, whole and summary only (`fields=`), and
+`GET /healthz` for scale.
 
 Run: `.venv/bin/python bench/bench_http.py` (starts its own API on a temporary SQLite file) or
 `.venv/bin/python bench/bench_http.py --url http://127.0.0.1:8000` against a running server;
@@ -107,6 +109,27 @@ def run(url: str, clients: int, per_client: int, replay: bool) -> tuple[list[flo
     return latencies, time.perf_counter() - start
 
 
+def reads(url: str, proc: subprocess.Popen[bytes] | None, requests: int) -> None:
+    """p50 and the server's CPU per request of reads with one client (kept-alive connection)."""
+    with httpx.Client(base_url=url, timeout=120) as c:
+        plan = c.post("/v1/plans", json=body(False))
+        plan.raise_for_status()
+        paths = {"GET plan": f"/v1/plans/{plan.json()['id']}", "GET plan fields=": f"/v1/plans/{plan.json()['id']}?fields="}
+        paths["GET /healthz"] = "/healthz"
+        print(f"{'read':>18} {'p50 ms':>8} {'server CPU ms':>14}")
+        for name, path in paths.items():
+            for _ in range(10):
+                c.get(path).raise_for_status()
+            server_cpu = cpu_seconds(proc.pid) if proc else math.nan
+            latencies = []
+            for _ in range(requests):
+                start = time.perf_counter()
+                c.get(path).raise_for_status()
+                latencies.append(time.perf_counter() - start)
+            server_cpu = (cpu_seconds(proc.pid) if proc else math.nan) - server_cpu
+            print(f"{name:>18} {statistics.median(latencies) * 1e3:8.2f} {server_cpu / requests * 1e3:14.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--url", help="a running server; otherwise one is started on a temporary database")
@@ -144,6 +167,7 @@ def main() -> None:
             f"first request after /readyz (replay true): {first[0] * 1e3:.1f} ms, "
             f"{first[0] / p50[(True, 1)]:.2f}x the steady-state p50 (target <= 2)"
         )
+        reads(url, proc, args.requests)
     finally:
         if proc is not None:
             proc.terminate()

@@ -79,14 +79,16 @@ logging.getLogger("httpx").setLevel(logging.WARNING)  # the in-process requests 
 STATIC = Path(__file__).resolve().parent / "static"
 
 #: Requests that reach every router without changing anything (see :meth:`Kernels._visit_routers`).
+#: An id that no stored row has (ids are 32 hex digits: other text would not reach the routes).
+_NO_ID = "0" * 32
 WARM_UP_PATHS = (
-    "/v1/plans/warm-up",
-    "/v1/plans/warm-up/figures/joint-angles",
+    f"/v1/plans/{_NO_ID}",
+    f"/v1/plans/{_NO_ID}/figures/joint-angles",
     "/v1/robots/warm-up",
     "/v1/meshes",
     "/v1/task-presets",
-    "/v1/tuning-jobs/warm-up",
-    "/plans/warm-up",
+    f"/v1/tuning-jobs/{_NO_ID}",
+    f"/plans/{_NO_ID}",
 )
 
 

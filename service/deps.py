@@ -7,7 +7,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import inspect
-from collections.abc import Callable, Iterator
+from collections.abc import AsyncIterator, Callable
 from typing import Annotated, Any, Literal, TypeVar
 
 import mimeparse
@@ -20,8 +20,8 @@ from typing_extensions import TypeAliasType
 
 from service import figures
 from service.errors import MAX_OFFSET, ApiError, NotAcceptableError
-from service.infra.admission import DEFAULT_COST
-from service.infra.db import Database
+from service.infra.admission import DEFAULT_COST, Admission
+from service.infra.db import Database, elsewhere_if_locked
 from service.infra.loop import HandOff
 from service.infra.settings import Settings
 from service.schemas.common import ID_PATTERN, ID_REGEX
@@ -59,9 +59,19 @@ def get_db(request: Request) -> Database:
     return db
 
 
-def get_session(request: Request) -> Iterator[Session]:
-    with get_db(request).session() as session:
+async def get_session(request: Request) -> AsyncIterator[Session]:
+    """A database session for a blocking handler (a :class:`SessionRoute`'s), made on the event
+    loop, where making it does no I/O: the route checks the database file and the handler's first
+    query takes a connection, in the handler's thread, which then commits and closes it, so that
+    closing it here again does nothing either. A plain generator dependency is entered and left in
+    the thread pool: two more trips there and back for every read."""
+    db = get_db(request)
+    session = db.sessionmaker()
+    session.info["database"] = db
+    try:
         yield session
+    finally:
+        session.close()
 
 
 # The dependencies below are coroutines although they never wait: FastAPI runs a plain function
@@ -85,22 +95,28 @@ SettingsDep = Annotated[Settings, Depends(get_app_settings)]
 def _releasing_sessions(endpoint: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(endpoint)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        result = endpoint(*args, **kwargs)
-        for value in kwargs.values():
-            if isinstance(value, Session):
-                value.commit()
-                value.close()
-        return result
+        sessions = [value for value in kwargs.values() if isinstance(value, Session)]
+        try:
+            for session in sessions:
+                session.info["database"].check_file()  # a missing file: a 503 before any query
+            result = endpoint(*args, **kwargs)
+            for session in sessions:
+                session.commit()
+            return result
+        finally:
+            for session in sessions:
+                session.close()  # rolls back what was not committed (the handler raised)
 
     return wrapper
 
 
 class SessionRoute(APIRoute):
     """A route whose (blocking) handler commits and closes its :data:`SessionDep` session in its
-    own thread, as it returns. FastAPI closes a dependency's session only after the response is
-    serialised, and serialising a blocking handler's response waits for a thread of the same
-    pool: under load, handlers that have returned would hold every database connection while
-    the running ones wait for one (a pool timeout, a 503), measured with 50 clients."""
+    own thread, as it returns (closes it, rolling back, if it raises). FastAPI closes a
+    dependency's session only after the response is serialised, and serialising a blocking
+    handler's response waits for a thread of the same pool: under load, handlers that have
+    returned would hold every database connection while the running ones wait for one (a pool
+    timeout, a 503), measured with 50 clients."""
 
     def __init__(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
         if not inspect.iscoroutinefunction(endpoint):
@@ -142,20 +158,49 @@ T = TypeVar("T")
 async def run_admitted(request: Request, work: Callable[[], T], what: str | None = None, cost: float = DEFAULT_COST) -> T:
     """Run ``work()`` once the plan admission lets it in (``what`` names the work in a 503, plans
     by default; ``cost``: its estimated joint-steps, see :mod:`service.infra.admission`): on the
-    event loop (in its turn, :meth:`~service.infra.admission.Admission.loop_turn`) if it costs at
-    most the admission's ``inline_max_cost`` and the kernels are loaded, else in the thread pool.
-    Work on the loop may hand its rest to the thread pool (:class:`~service.infra.loop.HandOff`)."""
+    event loop (:func:`_on_loop_or_pool`) if it costs at most the admission's ``inline_max_cost``
+    and the kernels are loaded, else in the thread pool."""
     state = request.app.state
     admission = state.plan_admission
     async with admission.slot(what, cost):
         # not while the kernels load: the loop would wait for numba's compiler lock, /healthz too
-        if cost <= admission.inline_max_cost and state.kernels.state == "ok":
-            try:
-                async with admission.loop_turn():
-                    return work()
-            except HandOff as rest:  # a locked database, a larger task than the request said
-                work = rest.then  # run after the except clause: its errors do not carry the HandOff
-        return await run_in_threadpool(work)
+        on_loop = cost <= admission.inline_max_cost and state.kernels.state == "ok" and state.db.spare_connection()
+        return await _on_loop_or_pool(admission, work, on_loop)
+
+
+async def run_read(request: Request, work: Callable[[], T]) -> T:
+    """Run a database read ``work()`` (which opens its own sessions) where cheap plans run: on
+    the event loop when the admission runs any there (a SQLite database with a connection to
+    spare) and the kernels are loaded, in turns of its own, else in the thread pool. On the loop
+    its SQLite sessions do not wait for another writer's lock
+    (:func:`~service.infra.db.elsewhere_if_locked`: then the read runs again in the pool);
+    ``work`` may hand itself to the pool (:class:`~service.infra.loop.HandOff`) when what it found
+    is too large for the loop."""
+
+    def guarded() -> T:
+        with elsewhere_if_locked(work):
+            return work()
+
+    state = request.app.state
+    admission = state.plan_admission
+    on_loop = admission.inline_max_cost > 0 and state.kernels.state == "ok" and state.db.spare_connection()
+    return await _on_loop_or_pool(admission, guarded, on_loop, "reads")
+
+
+async def _on_loop_or_pool(admission: Admission, work: Callable[[], T], on_loop: bool, kind: str = "plans") -> T:
+    """``work()`` on the event loop in a turn of ``kind`` (:meth:`~service.infra.admission.Admission.loop_turn`)
+    if ``on_loop``, else in the thread pool; work on the loop may hand its rest to the pool
+    (:class:`~service.infra.loop.HandOff`: a locked database, a task or a row larger than it said).
+    The hand-off to a thread and back cost a paper plan's request, or a read, about a millisecond
+    of CPU. (``on_loop`` only once the start-up's rehearsal is over and while the pool has a free
+    connection: the loop must not wait for one.)"""
+    if on_loop:
+        try:
+            async with admission.loop_turn(kind):
+                return work()
+        except HandOff as rest:
+            work = rest.then  # run after the except clause: its errors do not carry the HandOff
+    return await run_in_threadpool(work)
 
 
 def negotiate(accept: str | None, offered: list[str]) -> str | None:

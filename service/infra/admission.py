@@ -40,6 +40,11 @@ BACKSTOP = 2.0
 #: 3-4 ms (measured over HTTP). The loop is blocked that long, so ``/healthz`` and the other
 #: requests wait at most a few milliseconds per such plan; larger work keeps the thread pool.
 INLINE_MAX_COST = REQUEST_OVERHEAD + 3_000.0
+#: A stored plan whose request and trajectory take at most this many bytes is read, validated and
+#: encoded on the event loop where cheap plans run (``GET /v1/plans/{id}``): a paper plan's 29 kB
+#: took 0.9 ms, so this is about 2 ms. A larger one is read in the thread pool (a 20,000-step
+#: plan's JSON takes 60 ms; an inline robot of many shapes makes a large request to validate).
+INLINE_READ_BYTES = 64 * 1024
 
 
 class OverloadedError(ApiError):
@@ -98,7 +103,7 @@ class Admission:
         self.backlog_s = 0.0  # estimated seconds of the admitted work not finished (running and waiting)
         self.seconds_per_cost = INITIAL_SECONDS_PER_COST
         self._semaphore: asyncio.Semaphore | None = None
-        self._loop_turn: asyncio.Lock | None = None
+        self._loop_turns: dict[str, asyncio.Lock] = {}
 
     def estimated_wait_s(self) -> float:
         """How long a request admitted now would wait for a slot: the backlog over the slots."""
@@ -145,14 +150,17 @@ class Admission:
             self._semaphore.release()
 
     @asynccontextmanager
-    async def loop_turn(self) -> AsyncIterator[None]:
-        """A turn for work that runs on the event loop (:data:`INLINE_MAX_COST`): one at a time,
+    async def loop_turn(self, kind: str = "plans") -> AsyncIterator[None]:
+        """A turn for work of ``kind`` that runs on the event loop (cheap plans,
+        :data:`INLINE_MAX_COST`; small reads, :data:`INLINE_READ_BYTES`): one of a kind at a time,
         and the next not before the loop's next pass over its sockets. Requests that arrive together
         reach their work in one pass of the loop; run back to back there, a burst of 100 paper plans
-        kept ``/healthz`` waiting for all of them (a second)."""
-        if self._loop_turn is None:  # created on the event loop that uses it
-            self._loop_turn = asyncio.Lock()
-        turn = self._loop_turn
+        kept ``/healthz`` waiting for all of them (a second). Each kind has its turns (reads are not
+        admitted: queued among the plans' turns, they would slow the plans the admission
+        measures)."""
+        turn = self._loop_turns.get(kind)
+        if turn is None:  # created on the event loop that uses it
+            turn = self._loop_turns[kind] = asyncio.Lock()
         await turn.acquire()
         try:
             yield

@@ -37,6 +37,7 @@ from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.pool import QueuePool
 
 from service.infra import jsonio
 from service.infra.loop import HandOff, on_event_loop
@@ -305,6 +306,15 @@ class Database:
         if reason is not None and not isinstance(exc, PoolTimeoutError):
             self.engine.dispose()
         return reason
+
+    def spare_connection(self) -> bool:
+        """Whether the pool has a connection that nobody holds, so that taking one waits for
+        nothing (work on the event loop asks first: start-up's rehearsal, or a handler holding
+        two connections, may hold the one the pool keeps for the loop)."""
+        pool = self.engine.pool
+        if not isinstance(pool, QueuePool):
+            return True
+        return pool.checkedout() < pool.size()
 
     @contextmanager
     def session(self) -> Iterator[Session]:

@@ -218,6 +218,10 @@ def serve(app: Any, settings: Settings, log_level: str, log_config: dict[str, An
         host=settings.host,
         port=settings.port,
         http=protocol,
+        # asyncio's loop, even where uvloop is installed (uvicorn's "auto" would take it): the
+        # guards above rely on asyncio's accept loop and exception handler (with uvloop, running
+        # out of descriptors was not logged at all)
+        loop="asyncio",
         backlog=BACKLOG,
         log_level=log_level,
         log_config=log_config,

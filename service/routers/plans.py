@@ -3,8 +3,9 @@
 the event loop, then runs there if it is cheap (a paper plan: the hand-off to a thread cost more
 than a third of the request; the rest goes to a thread if the prepared task is larger than the
 body said, or if another writer holds the database), else in the thread pool (the engine's kernels
-release the GIL, so plans run in parallel on every core). Reads are plain ``def`` handlers in the
-thread pool.
+release the GIL, so plans run in parallel on every core). A plan is read where cheap plans run (on
+the loop, unless its stored trajectory is large: :data:`~service.infra.admission.INLINE_READ_BYTES`);
+the other reads are plain ``def`` handlers in the thread pool.
 
 Plan bodies are written once, by orjson from the planner's arrays (:mod:`service.infra.jsonio`): the
 trajectory is neither copied into Python lists nor validated again on the way out. Trajectories
@@ -31,10 +32,11 @@ from service.deps import (
     negotiate,
     one_of_body,
     run_admitted,
+    run_read,
     schema_ref,
 )
 from service.errors import NotAcceptableError, responses
-from service.infra.admission import plan_cost
+from service.infra.admission import INLINE_READ_BYTES, plan_cost
 from service.infra.db import Database, elsewhere_if_locked
 from service.infra.loop import HandOff, on_event_loop
 from service.schemas.methods import MethodName
@@ -137,8 +139,15 @@ def list_plans(
     responses=responses(404, 406, 422),
     dependencies=[JsonOnly],
 )
-def get_plan(plan_id: PlanId, session: SessionDep, fields: FieldsQuery = None) -> Response:
-    return Response(plans.read(session, plan_id, plans.parse_sections(fields)), media_type="application/json")
+async def get_plan(request: Request, plan_id: PlanId, fields: FieldsQuery = None) -> Response:
+    sections = plans.parse_sections(fields)
+    db: Database = request.app.state.db
+
+    def work() -> bytes:
+        # on the event loop, a plan with a large trajectory is read in a thread
+        return plans.read(db, plan_id, sections, within=INLINE_READ_BYTES if on_event_loop() else math.inf)
+
+    return Response(await run_read(request, work), media_type="application/json")
 
 
 TRAJECTORY_RESPONSES: dict[int | str, dict[str, Any]] = {

@@ -23,7 +23,8 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 from pydantic import ValidationError
-from sqlalchemy import ColumnElement, Table, func, insert, or_, select
+from sqlalchemy import ColumnElement, Select, Table, Text, case, func, insert, literal, or_, select
+from sqlalchemy import cast as sql_cast
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -35,7 +36,7 @@ from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.uncertainty import Uncertainty
 from service.errors import ApiValidationError, NotFoundError, body_invalid
 from service.infra import jsonio
-from service.infra.admission import work_cost
+from service.infra.admission import INLINE_READ_BYTES, work_cost
 from service.infra.db import Database
 from service.infra.loop import HandOff
 from service.infra.lru import Lru
@@ -553,15 +554,35 @@ def request_of(db: Database, body: dict[str, Any]) -> PlanRequest:
         raise body_invalid(exc) from None
 
 
-def read(session: Session, plan_id: str, sections: set[str]) -> bytes:
-    """A stored plan's JSON body with the ``sections`` asked for."""
+def _read_query(plan_id: str, trajectory: bool, within: float) -> Select[Any]:
+    """The one query of :func:`read`: the summary, and the stored trajectory if asked for and,
+    with the stored request, of at most ``within`` bytes (finite: with their sizes)."""
     columns: list[Any] = [*SUMMARY_COLUMNS, Plan.replay]
-    if "trajectory" in sections:
+    if not math.isinf(within):
+        request_chars = func.length(sql_cast(Plan.request, Text))
+        stored_bytes = func.length(Plan.trajectory_data) if trajectory else literal(0)
+        columns += [request_chars.label("request_chars"), stored_bytes.label("stored_bytes")]
+        if trajectory:
+            columns.append(case((stored_bytes + request_chars <= within, Plan.trajectory_data)).label("trajectory_data"))
+    elif trajectory:
         columns.append(Plan.trajectory_data)
-    found = session.execute(select(*columns).where(Plan.id == plan_id)).first()
+    return select(*columns).where(Plan.id == plan_id)
+
+
+def read(db: Database, plan_id: str, sections: set[str], *, within: float = math.inf) -> bytes:
+    """A stored plan's JSON body with the ``sections`` asked for. ``within``: the most bytes of
+    stored request and trajectory read, validated and encoded here (on the event loop,
+    :data:`~service.infra.admission.INLINE_READ_BYTES`); a larger plan raises
+    :class:`~service.infra.loop.HandOff` with the read without a limit as its rest (a query
+    again, in a thread). The trajectory comes back from the database only within the limit."""
+    trajectory = "trajectory" in sections
+    with db.session() as session:
+        found = session.execute(_read_query(plan_id, trajectory, within)).first()
     if found is None:
         raise NotFoundError("plan", plan_id)
-    record = record_from_storage(unpack_trajectory(found.trajectory_data)) if "trajectory" in sections else None
+    if not math.isinf(within) and found.request_chars + found.stored_bytes > within:
+        raise HandOff(lambda: read(db, plan_id, sections), "the plan is larger than the event loop takes")
+    record = record_from_storage(unpack_trajectory(found.trajectory_data)) if trajectory else None
     return body_json(summary(found), sections, record, found.replay)
 
 
@@ -592,7 +613,7 @@ def rehearse(db: Database, settings: Settings) -> None:
             row = planned.row
             insert_plan(session, settings, row)
             body_json(summary(row), set(PLAN_SECTIONS), planned.record, row.replay)
-            found = session.execute(select(*SUMMARY_COLUMNS, Plan.replay, Plan.trajectory_data).where(Plan.id == row.id)).one()
+            found = session.execute(_read_query(row.id, True, INLINE_READ_BYTES)).one()
             record_from_storage(unpack_trajectory(found.trajectory_data))
         finally:
             session.rollback()

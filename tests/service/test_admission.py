@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import sqlite3
 import statistics
 import threading
@@ -23,13 +24,23 @@ import pytest
 from sqlalchemy import text
 from sqlalchemy.exc import OperationalError
 
-from service.deps import run_admitted
-from service.infra.admission import DEFAULT_COST, INLINE_MAX_COST, REQUEST_OVERHEAD, Admission, OverloadedError, plan_cost
+from service.deps import run_admitted, run_read
+from service.errors import NotFoundError
+from service.infra.admission import (
+    DEFAULT_COST,
+    INLINE_MAX_COST,
+    INLINE_READ_BYTES,
+    REQUEST_OVERHEAD,
+    Admission,
+    OverloadedError,
+    plan_cost,
+)
 from service.infra.db import Database, WouldWaitError, elsewhere_if_locked
 from service.infra.loop import HandOff
+from service.infra.migrate import upgrade
 from service.infra.settings import Settings
 from service.schemas.plans import PlanRequest
-from service.usecases import plans
+from service.usecases import plans, robots
 from tests.service.conftest import PAPER_TASK, Stack
 
 TUNED = {"name": "adaptive", "params": {"lambda_max": 0.04, "epsilon": 0.37}}
@@ -50,11 +61,33 @@ def test_a_plans_cost_is_its_joint_steps() -> None:
     assert plan_cost({"from_plan_id": "p", "task": {"dt_s": 0.25}, "replay": False}) == DEFAULT_COST
 
 
-def fake_request(admission: Admission, kernels: str = "ok") -> Any:
-    """What :func:`run_admitted` reads of a request: the app's admission and kernels' state."""
+def fake_request(admission: Admission, kernels: str = "ok", spare: bool = True) -> Any:
+    """What :func:`run_admitted` and :func:`run_read` read of a request: the app's admission, the
+    kernels' state and whether the database pool has a connection to spare."""
     return SimpleNamespace(
-        app=SimpleNamespace(state=SimpleNamespace(plan_admission=admission, kernels=SimpleNamespace(state=kernels)))
+        app=SimpleNamespace(
+            state=SimpleNamespace(
+                plan_admission=admission,
+                kernels=SimpleNamespace(state=kernels),
+                db=SimpleNamespace(spare_connection=lambda: spare),
+            )
+        )
     )
+
+
+def handing_off(threads: list[bool], loop_thread: int, answer: str) -> Callable[[], str]:
+    """Work that notes in ``threads`` whether it ran on ``loop_thread`` and hands off its rest,
+    which notes the same and gives ``answer``."""
+
+    def rest() -> str:
+        threads.append(threading.get_ident() == loop_thread)
+        return answer
+
+    def work() -> str:
+        threads.append(threading.get_ident() == loop_thread)
+        raise HandOff(rest)
+
+    return work
 
 
 def test_cheap_work_runs_on_the_event_loop_and_the_rest_in_the_thread_pool() -> None:
@@ -96,15 +129,7 @@ def test_work_on_the_event_loop_hands_its_rest_to_the_thread_pool_and_waits_for_
         loop_thread = threading.get_ident()
         admission = Admission("plans", slots=2, queue=10, wait_s=10.0, inline_max_cost=INLINE_MAX_COST)
         threads: list[bool] = []
-
-        def rest() -> str:
-            threads.append(threading.get_ident() == loop_thread)
-            return "the rest's answer"
-
-        def work() -> str:
-            threads.append(threading.get_ident() == loop_thread)
-            raise HandOff(rest)
-
+        work = handing_off(threads, loop_thread, "the rest's answer")
         answer = await run_admitted(fake_request(admission), work, cost=REQUEST_OVERHEAD)
         loading = await run_admitted(fake_request(admission, "loading"), threading.get_ident, cost=REQUEST_OVERHEAD)
         return threads, answer, loading == loop_thread
@@ -132,6 +157,128 @@ def test_a_task_larger_than_its_request_said_is_planned_off_the_event_loop() -> 
     paper = PlanRequest.model_validate({"robot_id": "table1", "task": PAPER_TASK, "method": TUNED, "replay": False})
     assert plans.joint_steps(plans.prepare(None, paper), paper) == plan_cost({"task": PAPER_TASK, "replay": False})
     assert plans.compute(None, Settings(), paper, within=INLINE_MAX_COST).record["t"].shape == (61,)
+
+
+def test_reads_run_on_the_event_loop_where_cheap_plans_do() -> None:
+    """A read runs on the loop's thread when the admission runs cheap plans there (SQLite with a
+    connection to spare), in the thread pool when it runs none there (PostgreSQL), while the
+    kernels load (start-up's rehearsal holds a connection) and while the pool has no connection
+    free; a read that hands itself off (a large plan) or finds the database locked has its rest
+    run in a thread."""
+    inline = {"slots": 2, "queue": 10, "wait_s": 10.0, "inline_max_cost": INLINE_MAX_COST}
+
+    async def scenario() -> tuple[dict[str, bool], list[bool], str, list[bool]]:
+        loop_thread = threading.get_ident()
+        admission = Admission("plans", **inline)  # type: ignore[arg-type]
+        requests = {
+            "inline": fake_request(admission),
+            "postgres": fake_request(Admission("plans", slots=2, queue=10, wait_s=10.0)),
+            "loading": fake_request(admission, "loading"),
+            "no spare connection": fake_request(admission, spare=False),
+        }
+        on_loop = {name: await run_read(request, threading.get_ident) == loop_thread for name, request in requests.items()}
+        threads: list[bool] = []
+        answer = await run_read(requests["inline"], handing_off(threads, loop_thread, "read in a thread"))
+        locked_threads: list[bool] = []
+
+        def locked() -> str:
+            locked_threads.append(threading.get_ident() == loop_thread)
+            if len(locked_threads) == 1:
+                raise OperationalError("SELECT 1", {}, sqlite3.OperationalError("database is locked"))
+            return "read again"
+
+        assert await run_read(requests["inline"], locked) == "read again"
+        return on_loop, threads, answer, locked_threads
+
+    on_loop, threads, answer, locked_threads = asyncio.run(scenario())
+    assert on_loop == {"inline": True, "postgres": False, "loading": False, "no spare connection": False}
+    assert threads == [True, False] and answer == "read in a thread"
+    assert locked_threads == [True, False]
+
+
+def test_the_pool_says_whether_a_connection_is_free(tmp_path: Path) -> None:
+    """``spare_connection`` is false while every pooled connection is held (work on the loop would
+    wait for one), true again once one is back."""
+    sqlite3.connect(tmp_path / "pool.db").close()
+    db = Database(f"sqlite:///{tmp_path / 'pool.db'}", pool_size=2, max_overflow=0)
+    try:
+        assert db.spare_connection()
+        with db.engine.connect():
+            assert db.spare_connection()
+            with db.engine.connect():
+                assert not db.spare_connection()
+        assert db.spare_connection()
+    finally:
+        db.engine.dispose()
+
+
+def test_a_plan_with_a_large_trajectory_is_read_off_the_event_loop(tmp_path: Path) -> None:
+    """``plans.read`` with a budget: a paper plan (28 kB stored) is read within it; a plan of 601
+    samples is not, and the read handed off gives the same body as a read without a budget. The
+    summary alone counts the stored request; an unknown id is a 404 either way."""
+    url = f"sqlite:///{tmp_path / 'reads.db'}"
+    upgrade(url)
+    db = Database(url)
+    robots.seed_presets(db)
+    settings = Settings()
+    ids = {}
+    for name, dt in (("paper", PAPER_TASK["dt_s"]), ("long", 15.0 / 600)):
+        asked = PlanRequest.model_validate(
+            {"robot_id": "table1", "task": {**PAPER_TASK, "dt_s": dt}, "method": TUNED, "replay": False}
+        )
+        ids[name] = plans.store(db, settings, plans.compute(db, settings, asked)).id
+    everything = {"trajectory", "replay"}
+    try:
+        paper = plans.read(db, ids["paper"], everything, within=INLINE_READ_BYTES)
+        assert paper == plans.read(db, ids["paper"], everything)
+        assert len(json.loads(paper)["trajectory"]["t_s"]) == 61
+        with pytest.raises(HandOff) as larger:
+            plans.read(db, ids["long"], everything, within=INLINE_READ_BYTES)
+        body = larger.value.then()
+        assert body == plans.read(db, ids["long"], everything)
+        assert len(json.loads(body)["trajectory"]["t_s"]) == 601
+        summary = plans.read(db, ids["long"], set(), within=INLINE_READ_BYTES)
+        assert "trajectory" not in json.loads(summary) and summary == plans.read(db, ids["long"], set())
+        with pytest.raises(HandOff):  # the stored request counts too (an inline robot may be large)
+            plans.read(db, ids["long"], set(), within=100.0)
+        with pytest.raises(NotFoundError):
+            plans.read(db, "0" * 32, everything, within=INLINE_READ_BYTES)
+    finally:
+        db.engine.dispose()
+
+
+@pytest.mark.parametrize("loop", [True, False], ids=["reads-on-the-loop", "reads-in-threads"])
+def test_a_plan_is_read_while_another_process_holds_the_write_lock(make_stack: Callable[..., Stack], loop: bool) -> None:
+    """Over HTTP, a stored paper plan (read on the event loop, where a SQLite session does not
+    wait for a lock) and a large one (in a thread) are read at once and whole while another
+    process holds SQLite's write lock: in WAL mode readers do not wait for writers. The same with
+    a database pool that leaves no connection for the loop (every read in a thread, whose read
+    takes no budget)."""
+    stack = make_stack()
+    if not loop:
+        stack.env.update({"SPACEARM_API_THREADS": "4", "SPACEARM_DB_POOL_SIZE": "4"})
+    stack.start_api()
+    body = {"robot_id": "table1", "task": PAPER_TASK, "method": TUNED, "replay": False}
+    long_body = {**body, "task": {**PAPER_TASK, "dt_s": 15.0 / 600}}
+    with stack.client() as c:
+        paper_id = c.post("/v1/plans?fields=", json=body).json()["id"]
+        long_id = c.post("/v1/plans?fields=", json=long_body).json()["id"]
+        expected = {i: c.get(f"/v1/plans/{i}").content for i in (paper_id, long_id)}
+    other = sqlite3.connect(stack.db_path, isolation_level=None)
+    other.execute("BEGIN IMMEDIATE")
+    try:
+        with stack.client() as c:
+            for plan_id, samples in ((paper_id, 61), (long_id, 601)):
+                started = time.monotonic()
+                answer = c.get(f"/v1/plans/{plan_id}", timeout=5)
+                assert answer.status_code == 200 and time.monotonic() - started < 2.0
+                assert answer.content == expected[plan_id]
+                assert len(answer.json()["trajectory"]["t_s"]) == samples
+            assert c.get(f"/v1/plans/{paper_id}", params={"fields": ""}, timeout=5).json()["id"] == paper_id
+            assert c.get(f"/v1/plans/{'0' * 32}", timeout=5).status_code == 404
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
 
 
 def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
