@@ -83,7 +83,7 @@ STATIC = Path(__file__).resolve().parent / "static"
 _NO_ID = "0" * 32
 WARM_UP_PATHS = (
     f"/v1/plans/{_NO_ID}",
-    f"/v1/plans/{_NO_ID}/figures/joint-angles",
+    f"/v1/plans/{_NO_ID}/figures/warm-up",  # an unknown figure: a 404 before the figures' admission
     "/v1/robots/warm-up",
     "/v1/meshes",
     "/v1/task-presets",

@@ -164,8 +164,8 @@ async def run_admitted(request: Request, work: Callable[[], T], what: str | None
     admission = state.plan_admission
     async with admission.slot(what, cost):
         # not while the kernels load: the loop would wait for numba's compiler lock, /healthz too
-        on_loop = cost <= admission.inline_max_cost and state.kernels.state == "ok" and state.db.spare_connection()
-        return await _on_loop_or_pool(admission, work, on_loop)
+        on_loop = cost <= admission.inline_max_cost and state.kernels.state == "ok"
+        return await _on_loop_or_pool(admission, state.db, work, on_loop)
 
 
 async def run_read(request: Request, work: Callable[[], T]) -> T:
@@ -183,21 +183,22 @@ async def run_read(request: Request, work: Callable[[], T]) -> T:
 
     state = request.app.state
     admission = state.plan_admission
-    on_loop = admission.inline_max_cost > 0 and state.kernels.state == "ok" and state.db.spare_connection()
-    return await _on_loop_or_pool(admission, guarded, on_loop, "reads")
+    on_loop = admission.inline_max_cost > 0 and state.kernels.state == "ok"
+    return await _on_loop_or_pool(admission, state.db, guarded, on_loop, "reads")
 
 
-async def _on_loop_or_pool(admission: Admission, work: Callable[[], T], on_loop: bool, kind: str = "plans") -> T:
+async def _on_loop_or_pool(admission: Admission, db: Database, work: Callable[[], T], on_loop: bool, kind: str = "plans") -> T:
     """``work()`` on the event loop in a turn of ``kind`` (:meth:`~service.infra.admission.Admission.loop_turn`)
     if ``on_loop``, else in the thread pool; work on the loop may hand its rest to the pool
     (:class:`~service.infra.loop.HandOff`: a locked database, a task or a row larger than it said).
     The hand-off to a thread and back cost a paper plan's request, or a read, about a millisecond
-    of CPU. (``on_loop`` only once the start-up's rehearsal is over and while the pool has a free
-    connection: the loop must not wait for one.)"""
+    of CPU. (``on_loop`` only once the start-up's rehearsal is over; in its turn, the work still
+    goes to the pool if the database pool has no connection free: the loop must not wait for one.)"""
     if on_loop:
         try:
             async with admission.loop_turn(kind):
-                return work()
+                if db.spare_connection():
+                    return work()
         except HandOff as rest:
             work = rest.then  # run after the except clause: its errors do not carry the HandOff
     return await run_in_threadpool(work)

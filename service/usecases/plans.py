@@ -36,7 +36,7 @@ from engine.spatial import matrix_to_quaternion, quaternion_to_matrix
 from engine.uncertainty import Uncertainty
 from service.errors import ApiValidationError, NotFoundError, body_invalid
 from service.infra import jsonio
-from service.infra.admission import INLINE_READ_BYTES, work_cost
+from service.infra.admission import work_cost
 from service.infra.db import Database
 from service.infra.loop import HandOff
 from service.infra.lru import Lru
@@ -613,7 +613,8 @@ def rehearse(db: Database, settings: Settings) -> None:
             row = planned.row
             insert_plan(session, settings, row)
             body_json(summary(row), set(PLAN_SECTIONS), planned.record, row.replay)
-            found = session.execute(_read_query(row.id, True, INLINE_READ_BYTES)).one()
+            # the event loop's statement (with a bound that any plan meets: the bound is a parameter)
+            found = session.execute(_read_query(row.id, True, 2**62)).one()
             record_from_storage(unpack_trajectory(found.trajectory_data))
         finally:
             session.rollback()

@@ -234,6 +234,9 @@ def test_a_plan_with_a_large_trajectory_is_read_off_the_event_loop(tmp_path: Pat
         assert len(json.loads(paper)["trajectory"]["t_s"]) == 61
         with pytest.raises(HandOff) as larger:
             plans.read(db, ids["long"], everything, within=INLINE_READ_BYTES)
+        with db.session() as session:  # the large trajectory is not even fetched on the loop
+            query = plans._read_query(ids["long"], True, INLINE_READ_BYTES)
+            assert session.execute(query).one().trajectory_data is None
         body = larger.value.then()
         assert body == plans.read(db, ids["long"], everything)
         assert len(json.loads(body)["trajectory"]["t_s"]) == 601
@@ -282,8 +285,9 @@ def test_a_plan_is_read_while_another_process_holds_the_write_lock(make_stack: C
 
 
 def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
-    """Cheap requests that reach their work in one pass of the event loop run one per pass, so
-    the loop polls its sockets (``/healthz``) between them, not after the whole burst."""
+    """Cheap requests (plans, and reads) that reach their work in one pass of the event loop run
+    one per pass, so the loop polls its sockets (``/healthz``) between them, not after the whole
+    burst."""
 
     async def scenario() -> tuple[list[int], int]:
         loop = asyncio.get_running_loop()
@@ -298,15 +302,17 @@ def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
 
         count_pass()
         started: list[int] = []
+        read: list[int] = []
 
         async def plan() -> None:
             await run_admitted(request, lambda: started.append(passes), cost=REQUEST_OVERHEAD)
 
         await asyncio.gather(*(plan() for _ in range(6)))  # six tasks, all ready in the same pass
-        return started, admission.running
+        await asyncio.gather(*(run_read(request, lambda: read.append(passes)) for _ in range(6)))
+        return started + [-1] + read, admission.running
 
     started, running = asyncio.run(scenario())
-    assert len(started) == 6 and running == 0
+    assert len(started) == 13 and running == 0
     assert started == sorted(set(started)), started  # each in a pass of its own
 
 

@@ -100,3 +100,18 @@ def _wait_ready(client: TestClient) -> None:
     while client.get("/readyz").status_code != 200:
         assert time.monotonic() < deadline
         time.sleep(0.01)
+
+
+def test_the_start_up_rehearsal_and_route_visits_run_clean(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The start-up rehearses a plan request (insert, the event loop's read statement, rolled
+    back) and visits each router's routes with ids that no row has: none of it is skipped or
+    answers other than 200 or 404 (a visit that reached the figures' admission from the warm-up
+    thread's own event loop would bind it to that loop)."""
+    with caplog.at_level("INFO"), _app(tmp_path) as client:
+        deadline = time.monotonic() + 60
+        while client.get("/readyz").status_code != 200:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    messages = [record.getMessage() for record in caplog.records]
+    assert any("engine kernels ready" in m for m in messages), messages
+    assert not [m for m in messages if "rehearsal" in m], messages
