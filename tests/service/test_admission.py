@@ -289,7 +289,7 @@ def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
     one per pass, so the loop polls its sockets (``/healthz``) between them, not after the whole
     burst."""
 
-    async def scenario() -> tuple[list[int], int]:
+    async def scenario() -> tuple[list[int], list[int], int]:
         loop = asyncio.get_running_loop()
         admission = Admission("plans", slots=2, queue=100, wait_s=10.0, inline_max_cost=INLINE_MAX_COST)
         request = fake_request(admission)
@@ -309,11 +309,12 @@ def test_work_on_the_event_loop_takes_turns_with_the_loops_passes() -> None:
 
         await asyncio.gather(*(plan() for _ in range(6)))  # six tasks, all ready in the same pass
         await asyncio.gather(*(run_read(request, lambda: read.append(passes)) for _ in range(6)))
-        return started + [-1] + read, admission.running
+        return started, read, admission.running
 
-    started, running = asyncio.run(scenario())
-    assert len(started) == 13 and running == 0
+    started, read, running = asyncio.run(scenario())
+    assert len(started) == 6 and len(read) == 6 and running == 0
     assert started == sorted(set(started)), started  # each in a pass of its own
+    assert read == sorted(set(read)), read
 
 
 def test_the_admission_refuses_by_estimated_wait_with_an_honest_retry_after() -> None:
