@@ -114,8 +114,8 @@ def reads(url: str, proc: subprocess.Popen[bytes] | None, requests: int) -> None
     with httpx.Client(base_url=url, timeout=120) as c:
         plan = c.post("/v1/plans", json=body(False))
         plan.raise_for_status()
-        paths = {"GET plan": f"/v1/plans/{plan.json()['id']}", "GET plan fields=": f"/v1/plans/{plan.json()['id']}?fields="}
-        paths["GET /healthz"] = "/healthz"
+        path = f"/v1/plans/{plan.json()['id']}"
+        paths = {"GET plan": path, "GET plan fields=": f"{path}?fields=", "GET /healthz": "/healthz"}
         print(f"{'read':>18} {'p50 ms':>8} {'server CPU ms':>14}")
         for name, path in paths.items():
             for _ in range(10):

@@ -4,8 +4,9 @@ the event loop, then runs there if it is cheap (a paper plan: the hand-off to a 
 than a third of the request; the rest goes to a thread if the prepared task is larger than the
 body said, or if another writer holds the database), else in the thread pool (the engine's kernels
 release the GIL, so plans run in parallel on every core). A plan is read where cheap plans run (on
-the loop, unless its stored trajectory is large: :data:`~service.infra.admission.INLINE_READ_BYTES`);
-the other reads are plain ``def`` handlers in the thread pool.
+the loop, unless its stored request and trajectory are large:
+:data:`~service.infra.admission.INLINE_READ_BYTES`); the other reads are plain ``def`` handlers in
+the thread pool.
 
 Plan bodies are written once, by orjson from the planner's arrays (:mod:`service.infra.jsonio`): the
 trajectory is neither copied into Python lists nor validated again on the way out. Trajectories
@@ -144,7 +145,7 @@ async def get_plan(request: Request, plan_id: PlanId, fields: FieldsQuery = None
     db: Database = request.app.state.db
 
     def work() -> bytes:
-        # on the event loop, a plan with a large trajectory is read in a thread
+        # on the event loop, a large plan (request and trajectory) is read in a thread
         return plans.read(db, plan_id, sections, within=INLINE_READ_BYTES if on_event_loop() else math.inf)
 
     return Response(await run_read(request, work), media_type="application/json")
