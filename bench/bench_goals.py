@@ -53,6 +53,12 @@ def rss_mib(pid: int) -> float:
     return next(int(line.split()[1]) for line in status if line.startswith("VmRSS")) / 1024
 
 
+def own_mib(pid: int) -> float:
+    """The process's anonymous memory (its own, not pages of files it maps), MiB."""
+    rollup = Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines()
+    return next(int(line.split()[1]) for line in rollup if line.startswith("Anonymous:")) / 1024
+
+
 def children_of(pid: int) -> dict[str, int]:
     """The API's and the workers' pids among ``pid``'s children (by their command lines)."""
     found = {}
@@ -138,6 +144,7 @@ def startup(directory: Path) -> list[Goal]:
                 for _ in range(50):
                     assert client.post("/v1/plans?fields=", json=PAPER).status_code == 201
             memory.update({f"{name} after 50 plans": rss_mib(pid) for name, pid in pids.items()})
+            memory.update({f"{name} anonymous": own_mib(pid) for name, pid in pids.items()})
         finally:
             launch.stop()
     print(f"warm starts to the URL: {', '.join(f'{s:.2f}' for s in warm)} s; RSS (MiB): "
@@ -157,7 +164,8 @@ def startup(directory: Path) -> list[Goal]:
     ]
     for name in ("API", "worker"):
         value = max(memory[name], memory[f"{name} after 50 plans"])
-        goals.append((f"{name} <= 250 MiB after warm-up (and after 50 plans)", f"{value:.1f} MiB", value <= 250.0))
+        measured = f"{value:.1f} MiB ({memory[f'{name} anonymous']:.0f} anonymous)"
+        goals.append((f"{name} <= 250 MiB after warm-up (and after 50 plans)", measured, value <= 250.0))
     return goals
 
 

@@ -93,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument(
         "--no-presets",
         action="store_true",
-        help="only the schema; the API adds the presets when it starts (what `spacearm run` does; default: off)",
+        help="only the schema; the API or a worker adds the presets when it starts (default: off)",
     )
 
     def listen_options(p: argparse.ArgumentParser) -> None:
@@ -189,11 +189,16 @@ def migrate(settings: Settings, revision: str, say: Say, presets: bool = True) -
         return 1
     if presets:
         from service.infra.db import Database
-        from service.usecases.robots import seed_presets  # the engine: only once the schema is there
+        from service.infra.revision import missing_presets
 
         db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
-        seed_presets(db)
-        db.dispose()
+        try:
+            if missing_presets(db.engine):
+                from service.usecases.robots import seed_presets  # the engine: only when a preset is missing
+
+                seed_presets(db)
+        finally:
+            db.dispose()
     say(f"database {display_url(settings.database_url)} at {revision}", False)
     return 0
 

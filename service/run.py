@@ -96,8 +96,10 @@ def prepare_in_children(env: dict[str, str], stop: threading.Event, *, verbose: 
     instead of each compiling them. Returns 0, the exit code of the first that failed (the other
     is stopped), or 130 if ``stop`` was set."""
     base = [sys.executable, "-P", "-m", "service"]
-    # the API adds the presets when it starts (the migration alone need not import the engine)
-    commands = [[*base, "migrate", "--no-presets", *(["--verbose"] if verbose else [])]]
+    # The migration seeds the preset robots a database lacks (a new one: all), so that the API and
+    # the workers, which would otherwise, do not build the URDF presets: their parser and trimesh
+    # stay in a process, about 60 MiB. It imports the engine only then.
+    commands = [[*base, "migrate", *(["--verbose"] if verbose else [])]]
     if not kernels_compiled():
         commands.append([*base, "compile"])
     children = [subprocess.Popen(command, env=env, preexec_fn=_die_with_parent) for command in commands]

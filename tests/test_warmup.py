@@ -8,11 +8,13 @@ import gc
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 from numba import types
 
+from engine import make_inverse, paper_task, plan
 from engine.executed import executed_trajectory
 from engine.kernels import spline
 from engine.kernels.cache import HERE as KERNELS_DIR
@@ -109,6 +111,69 @@ def test_a_parked_kernel_links_again_into_a_new_compilation() -> None:
     expected = np.linalg.svd(J[0], compute_uv=False)
     np.testing.assert_allclose(singular_values(J)[0], expected, rtol=1e-12)
     assert library._shared_module is not None  # parsed again for the link
+
+
+RELEASE_SCRIPT = """
+import json, re
+import numba
+import numpy as np
+from engine import make_inverse, paper_task, plan, table1_robot, warm_up
+from engine.kernels.jit import release_library_pages
+
+def llvm_mappings():
+    # (start, permissions, Rss KiB, Anonymous KiB) of each mapping of LLVM's library
+    found, current = [], None
+    for line in open("/proc/self/smaps").read().splitlines():
+        head = re.match(r"^([0-9a-f]+)-[0-9a-f]+ (\\S{4}) \\S+ \\S+ \\S+ *(.*)$", line)
+        if head:
+            current = [head[1], head[2], 0, 0] if "libllvmlite" in head[3] else None
+            if current:
+                found.append(current)
+        elif current and line.startswith(("Rss:", "Anonymous:")):
+            current[2 if line.startswith("Rss:") else 3] = int(line.split()[1])
+    return found
+
+warm_up()
+after_warm_up = llvm_mappings()
+
+@numba.njit
+def twice_root(x):
+    return 2.0 * np.sqrt(x)
+
+value = twice_root(4.0)  # a compilation: LLVM's code runs again
+after_compiling = llvm_mappings()
+released = release_library_pages("libllvmlite")
+after_release = llvm_mappings()
+model = table1_robot()
+q_end = plan(model, paper_task(model), make_inverse("adaptive")).q[-1].tolist()
+print(json.dumps(dict(after_warm_up=after_warm_up, after_compiling=after_compiling, released=released,
+                      after_release=after_release, value=value, q_end=q_end)))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/smaps").exists(), reason="needs Linux's /proc/<pid>/smaps")
+def test_llvms_library_pages_are_released_after_the_warm_up_and_come_back_when_needed() -> None:
+    """The warm-up ends by unmapping the resident pages of LLVM's library that are the file's own
+    (60-100 MiB of RSS on Linux 6.x, which maps the file in large folios): its read-only mappings
+    without a copied-on-write page. The relocated ones keep their pages; a later compilation
+    faults back what it runs, and the kernels and the compiler give the same results after."""
+    run = subprocess.run([sys.executable, "-c", RELEASE_SCRIPT], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    out = json.loads(run.stdout.strip().splitlines()[-1])
+
+    def clean(mappings: list[list]) -> int:
+        return sum(rss for _, perms, rss, anonymous in mappings if "w" not in perms and perms.endswith("p") and anonymous == 0)
+
+    assert any(anonymous for *_, anonymous in out["after_warm_up"])  # the relocated part, which must stay
+    assert clean(out["after_warm_up"]) == 0
+    assert clean(out["after_compiling"]) > 0  # the compilation ran LLVM's code from the file
+    assert out["released"] >= clean(out["after_compiling"]) > 0
+    assert clean(out["after_release"]) == 0
+    kept = {start: rss for start, _, rss, anonymous in out["after_compiling"] if anonymous}
+    assert kept and kept == {start: rss for start, _, rss, anonymous in out["after_release"] if anonymous}
+    assert out["value"] == 4.0
+    model = table1_robot()
+    assert out["q_end"] == plan(model, paper_task(model), make_inverse("adaptive")).q[-1].tolist()
 
 
 def _records() -> dict[str, dict[str, list[str]]]:

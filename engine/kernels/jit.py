@@ -6,7 +6,9 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import functools
+import mmap
 import os
+import re
 from collections.abc import Callable
 from typing import Any
 
@@ -56,8 +58,17 @@ def park_linking_modules() -> int:
     about 40 MiB of a process that has loaded every kernel and compiles nothing more. Then give
     the heap's free pages back to the system (:func:`_trim_heap`): the parked modules', and
     whatever else the process freed since (the API calls this again after rehearsing a request).
-    A compilation that does link one parses it again then. Returns how many were parked (none if
-    numba's code library no longer looks as expected: then no module is changed)."""
+    A compilation that does link one parses it again then. Last, drop this process's mappings of
+    LLVM's library pages (:func:`release_library_pages`), which only a compilation uses. Returns
+    how many modules were parked (none if numba's code library no longer looks as expected: then
+    no module is changed)."""
+    parked = _park()  # in a function of its own: its last module is disposed of when it returns
+    _trim_heap()
+    release_library_pages("libllvmlite")  # last: LLVM's code runs as it disposes of modules
+    return parked
+
+
+def _park() -> int:
     parked = 0
     for dispatcher in KERNELS:
         for result in list(dispatcher.overloads.values()):
@@ -68,7 +79,6 @@ def park_linking_modules() -> int:
             library._get_module_for_linking = _relinker(library, module.as_bitcode())
             library._shared_module = None
             parked += 1
-    _trim_heap()
     return parked
 
 
@@ -77,6 +87,51 @@ def _trim_heap() -> None:
     LLVM frees the parked modules into the heap, which would otherwise keep them in the RSS."""
     with contextlib.suppress(AttributeError, OSError):
         ctypes.CDLL(None).malloc_trim(0)
+
+
+#: A mapping's line in ``/proc/self/smaps``: start, end, permissions and the file, if any.
+_MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S{4}) \S+ \S+ \S+ *(.*)$")
+
+
+def release_library_pages(name: str, smaps: str = "/proc/self/smaps") -> int:
+    """Unmap from this process the resident pages of the shared library whose file name starts
+    with ``name`` wherever they are the file's own, unmodified: read-only private mappings with
+    no anonymous (copied-on-write) page. They stay in the page cache, and whatever runs their
+    code later faults them back in from there; the library's data, and the parts the loader
+    relocated, are not touched. Returns the KiB released (0 where ``/proc`` or ``madvise`` is
+    missing).
+
+    For LLVM's library (``libllvmlite.so``, 178 MB): Linux 6.x maps it in large folios, so each
+    process that loads it counts 60-100 MiB of it in its RSS although only a compilation, or the
+    loading of a cached kernel, runs its code."""
+    advise = getattr(mmap, "MADV_DONTNEED", None)
+    try:
+        with open(smaps) as file:
+            text = file.read()  # at once: the file changes as the process does
+        madvise = ctypes.CDLL(None, use_errno=True).madvise
+    except (OSError, AttributeError):
+        return 0
+    if advise is None:
+        return 0
+    madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+    found: list[list[int]] = []  # [start, end, Rss KiB, Anonymous KiB (-1 until read)] per mapping
+    current: list[int] | None = None
+    for line in text.splitlines():
+        head = _MAPPING.match(line)
+        if head:
+            start, end, perms, path = head.groups()
+            current = None
+            if os.path.basename(path).startswith(name) and "w" not in perms and perms.endswith("p"):
+                current = [int(start, 16), int(end, 16), 0, -1]
+                found.append(current)
+        elif current is not None and line.startswith(("Rss:", "Anonymous:")):
+            current[2 if line.startswith("Rss:") else 3] = int(line.split()[1])
+    released = 0
+    for start, end, rss, anonymous in found:
+        # with an anonymous page the loader relocated the mapping: those pages are the process's own
+        if anonymous == 0 and rss and madvise(start, end - start, advise) == 0:
+            released += rss
+    return released
 
 
 def _relinker(library: Any, bitcode: bytes) -> Callable[[], Any]:

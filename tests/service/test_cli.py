@@ -207,17 +207,25 @@ def test_run_prints_the_url_once_ready_and_ctrl_c_stops_everything(tmp_path: Pat
     print(f"\nspacearm run launcher: {rss_mib:.0f} MiB")
     assert rss_mib <= 60.0
     # The worker runs at a lower CPU priority than the API (a GA generation yields to requests)
-    niceness = {}
+    niceness, child_maps = {}, {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
                 fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
                 command = (entry / "cmdline").read_bytes().split(b"\0")
+                if int(fields[1]) == run.popen.pid:
+                    name = b"worker" if b"worker" in command else b"serve" if b"serve" in command else b"?"
+                    niceness[name] = int(fields[16])
+                    child_maps[name] = (entry / "maps").read_text()
             except OSError:
                 continue
-            if int(fields[1]) == run.popen.pid:
-                niceness[b"worker" if b"worker" in command else b"serve" if b"serve" in command else b"?"] = int(fields[16])
     assert niceness[b"worker"] == niceness[b"serve"] + 5, niceness
+    # The migration seeded the new database's presets: neither the API nor the worker built the URDF
+    # presets, whose parser brings trimesh and its libraries (about 60 MiB that would stay)
+    for name, maps in child_maps.items():
+        assert not any(library in maps for library in ("shapely", "manifold3d", "rtree")), name
+    robots = httpx.get(f"http://127.0.0.1:{port}/v1/robots", timeout=5).json()["items"]
+    assert {"table1", "table1-geometry", "arm7", "arm3"} <= {robot["id"] for robot in robots}
 
     run.popen.send_signal(signal.SIGINT)
     assert run.popen.wait(60) == 0

@@ -216,13 +216,35 @@ def test_half_migrated_legacy_database_is_repaired_or_refused(tmp_path: Path) ->
     assert out.returncode == 1 and "spacearm migrate: the database has tables that are not spacearm's (invoices)" in out.stderr
 
 
+def _migrate_imports(env: dict[str, str]) -> set[str]:
+    """The top-level packages a ``spacearm migrate`` process imported (``-X importtime``)."""
+    command = [sys.executable, "-X", "importtime", "-m", "service", "migrate"]
+    out = subprocess.run(command, cwd=ROOT, env=env, check=True, capture_output=True, text=True)
+    return {line.rsplit("|", 1)[1].strip().split(".")[0] for line in out.stderr.splitlines() if line.startswith("import time:")}
+
+
 def test_cli_migrate_seeds_preset_and_alembic_ini_works(tmp_path: Path) -> None:
+    from service.infra.revision import PRESET_ROBOT_IDS
+    from service.usecases.robots import preset_robots
+
+    assert list(PRESET_ROBOT_IDS) == list(preset_robots())
     url = f"sqlite:///{tmp_path / 'cli.db'}"
     env = {"SPACEARM_DATABASE_URL": url, "PATH": "/usr/bin:/bin"}
-    subprocess.run([sys.executable, "-m", "service", "migrate"], cwd=ROOT, env=env, check=True, capture_output=True)
+    # A new database: every preset, built with the engine (the URDF presets with their parser) ...
+    assert {"engine", "yourdfpy"} <= _migrate_imports(env)
     engine = make_engine(url)
     with engine.connect() as conn:
         assert conn.execute(text("SELECT preset FROM robots WHERE id = 'table1'")).scalar() == 1
+        assert sorted(conn.execute(text("SELECT id FROM robots WHERE preset")).scalars()) == sorted(PRESET_ROBOT_IDS)
+    # ... and one that has them: no engine (``spacearm run`` migrates at every start, beside the
+    # API's and the workers' imports)
+    assert not {"engine", "numba", "yourdfpy"} & _migrate_imports(env)
+    with engine.connect() as conn:
+        conn.execute(text("DELETE FROM robots WHERE id = 'arm3'"))
+        conn.commit()
+    assert "engine" in _migrate_imports(env)
+    with engine.connect() as conn:
+        assert sorted(conn.execute(text("SELECT id FROM robots WHERE preset")).scalars()) == sorted(PRESET_ROBOT_IDS)
     engine.dispose()
     # the repository's alembic.ini drives the same migrations
     out = subprocess.run(
