@@ -114,7 +114,8 @@ def test_a_parked_kernel_links_again_into_a_new_compilation() -> None:
 
 
 RELEASE_SCRIPT = """
-import json, re
+import gc, json, re
+gc.disable()  # a collection could dispose of an LLVM object, running its code, between two reads
 import numba
 import numpy as np
 from engine import make_inverse, paper_task, plan, table1_robot, warm_up

@@ -91,12 +91,13 @@ def _trim_heap() -> None:
 
 #: A mapping's line in ``/proc/self/smaps``: start, end, permissions and the file, if any.
 _MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S{4}) \S+ \S+ \S+ *(.*)$")
+_FIELDS = ("Rss:", "Anonymous:", "Swap:", "Private_Dirty:")
 
 
 def release_library_pages(name: str, smaps: str = "/proc/self/smaps") -> int:
     """Unmap from this process the resident pages of the shared library whose file name starts
     with ``name`` wherever they are the file's own, unmodified: read-only private mappings with
-    no anonymous (copied-on-write) page. They stay in the page cache, and whatever runs their
+    no copied-on-write page, resident or swapped out. They stay in the page cache, and whatever runs their
     code later faults them back in from there; the library's data, and the parts the loader
     relocated, are not touched. Returns the KiB released (0 where ``/proc`` or ``madvise`` is
     missing).
@@ -114,7 +115,8 @@ def release_library_pages(name: str, smaps: str = "/proc/self/smaps") -> int:
     if advise is None:
         return 0
     madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
-    found: list[list[int]] = []  # [start, end, Rss KiB, Anonymous KiB (-1 until read)] per mapping
+    # [start, end, Rss, Anonymous, Swap, Private_Dirty] per mapping (KiB; -1 until read)
+    found: list[list[int]] = []
     current: list[int] | None = None
     for line in text.splitlines():
         head = _MAPPING.match(line)
@@ -122,14 +124,16 @@ def release_library_pages(name: str, smaps: str = "/proc/self/smaps") -> int:
             start, end, perms, path = head.groups()
             current = None
             if os.path.basename(path).startswith(name) and "w" not in perms and perms.endswith("p"):
-                current = [int(start, 16), int(end, 16), 0, -1]
+                current = [int(start, 16), int(end, 16), -1, -1, -1, -1]
                 found.append(current)
-        elif current is not None and line.startswith(("Rss:", "Anonymous:")):
-            current[2 if line.startswith("Rss:") else 3] = int(line.split()[1])
+        elif current is not None and line.startswith(_FIELDS):
+            current[2 + _FIELDS.index(line.split(":", 1)[0] + ":")] = int(line.split()[1])
     released = 0
-    for start, end, rss, anonymous in found:
-        # with an anonymous page the loader relocated the mapping: those pages are the process's own
-        if anonymous == 0 and rss and madvise(start, end - start, advise) == 0:
+    for start, end, rss, *copied in found:
+        # A copied page, resident (Anonymous, Private_Dirty) or swapped out (Swap, which Anonymous
+        # does not count), means the loader relocated the mapping (RELRO): the process's own data,
+        # which MADV_DONTNEED would throw away.
+        if rss > 0 and copied == [0, 0, 0] and madvise(start, end - start, advise) == 0:
             released += rss
     return released
 

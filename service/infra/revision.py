@@ -15,7 +15,7 @@ HEAD = "0007"
 #: Alembic's table recording a database's revision.
 VERSION_TABLE = "alembic_version"
 #: The preset robots every database holds (the keys of :func:`service.usecases.robots.preset_robots`,
-#: which ``tests/service/test_robots.py`` checks), seeded by :func:`service.usecases.robots.seed_presets`.
+#: which ``tests/service/test_migrations.py`` checks), seeded by :func:`service.usecases.robots.seed_presets`.
 PRESET_ROBOT_IDS = ("table1", "table1-geometry", "arm7", "arm3")
 _ROBOT_ID = table("robots", column("id")).c.id  # without service.models: this module is read alone
 

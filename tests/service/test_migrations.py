@@ -240,9 +240,14 @@ def test_cli_migrate_seeds_preset_and_alembic_ini_works(tmp_path: Path) -> None:
     # API's and the workers' imports)
     assert not {"engine", "numba", "yourdfpy"} & _migrate_imports(env)
     with engine.connect() as conn:
+        conn.execute(text("DELETE FROM robots WHERE id = 'table1'"))
+        conn.commit()
+    imported = _migrate_imports(env)
+    assert "engine" in imported and "yourdfpy" not in imported  # only the missing preset is built
+    with engine.connect() as conn:
         conn.execute(text("DELETE FROM robots WHERE id = 'arm3'"))
         conn.commit()
-    assert "engine" in _migrate_imports(env)
+    assert {"engine", "yourdfpy"} <= _migrate_imports(env)
     with engine.connect() as conn:
         assert sorted(conn.execute(text("SELECT id FROM robots WHERE preset")).scalars()) == sorted(PRESET_ROBOT_IDS)
     engine.dispose()
