@@ -91,50 +91,53 @@ def _trim_heap() -> None:
 
 #: A mapping's line in ``/proc/self/smaps``: start, end, permissions and the file, if any.
 _MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) (\S{4}) \S+ \S+ \S+ *(.*)$")
-_FIELDS = ("Rss:", "Anonymous:", "Swap:", "Private_Dirty:")
+#: A mapping's copied-on-write pages: resident (``Anonymous``, ``Private_Dirty``) or swapped out
+#: (``Swap``, which ``Anonymous`` does not count).
+_COPIED = ("Anonymous", "Swap", "Private_Dirty")
 
 
 def release_library_pages(name: str, smaps: str = "/proc/self/smaps") -> int:
     """Unmap from this process the resident pages of the shared library whose file name starts
     with ``name`` wherever they are the file's own, unmodified: read-only private mappings with
-    no copied-on-write page, resident or swapped out. They stay in the page cache, and whatever runs their
-    code later faults them back in from there; the library's data, and the parts the loader
-    relocated, are not touched. Returns the KiB released (0 where ``/proc`` or ``madvise`` is
-    missing).
+    no copied-on-write page, resident or swapped out. They stay in the page cache, and whatever
+    runs their code later faults them back in from there; the library's data, and the parts the
+    loader relocated, are not touched. Returns the KiB released (0 where ``/proc`` or ``madvise``
+    is missing).
 
     For LLVM's library (``libllvmlite.so``, 178 MB): Linux 6.x maps it in large folios, so each
     process that loads it counts 60-100 MiB of it in its RSS although only a compilation, or the
     loading of a cached kernel, runs its code."""
     advise = getattr(mmap, "MADV_DONTNEED", None)
+    if advise is None:
+        return 0
     try:
         with open(smaps) as file:
             text = file.read()  # at once: the file changes as the process does
         madvise = ctypes.CDLL(None, use_errno=True).madvise
     except (OSError, AttributeError):
         return 0
-    if advise is None:
-        return 0
     madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
-    # [start, end, Rss, Anonymous, Swap, Private_Dirty] per mapping (KiB; -1 until read)
-    found: list[list[int]] = []
-    current: list[int] | None = None
+    found: list[tuple[int, int, dict[str, int]]] = []  # (start, end, {field: KiB}) of each candidate
+    fields: dict[str, int] | None = None  # the current mapping's, if it is a candidate
     for line in text.splitlines():
         head = _MAPPING.match(line)
         if head:
             start, end, perms, path = head.groups()
-            current = None
+            fields = None
             if os.path.basename(path).startswith(name) and "w" not in perms and perms.endswith("p"):
-                current = [int(start, 16), int(end, 16), -1, -1, -1, -1]
-                found.append(current)
-        elif current is not None and line.startswith(_FIELDS):
-            current[2 + _FIELDS.index(line.split(":", 1)[0] + ":")] = int(line.split()[1])
+                fields = {}
+                found.append((int(start, 16), int(end, 16), fields))
+        elif fields is not None:
+            key, _, value = line.partition(":")
+            if value.strip().endswith("kB"):
+                fields[key] = int(value.split()[0])
     released = 0
-    for start, end, rss, *copied in found:
-        # A copied page, resident (Anonymous, Private_Dirty) or swapped out (Swap, which Anonymous
-        # does not count), means the loader relocated the mapping (RELRO): the process's own data,
-        # which MADV_DONTNEED would throw away.
-        if rss > 0 and copied == [0, 0, 0] and madvise(start, end - start, advise) == 0:
-            released += rss
+    for start, end, kib in found:
+        # a copied page means the loader relocated the mapping (RELRO): the process's own data,
+        # which MADV_DONTNEED would throw away (a field not read counts as a copied page)
+        clean = all(kib.get(key, -1) == 0 for key in _COPIED)
+        if clean and kib.get("Rss", 0) > 0 and madvise(start, end - start, advise) == 0:
+            released += kib["Rss"]
     return released
 
 
