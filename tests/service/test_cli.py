@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import gc
 import json
 import os
@@ -294,6 +295,34 @@ def test_run_puts_several_api_processes_behind_one_port_with_summed_metrics(tmp_
     assert run.rest().count("Finished server process") == 2
     assert not _port_open(port)
     assert shared.is_dir()  # given: kept
+
+
+def test_the_port_api_processes_share_answers_without_nagles_delay() -> None:
+    """The socket several API processes bind (``shared_port_socket``) gives connections on which
+    asyncio turns Nagle's algorithm off (``TCP_NODELAY``), as on the socket uvicorn binds itself:
+    asyncio does so only for a socket that names ``IPPROTO_TCP``, and without it a response's body
+    waited behind its headers for the client's delayed ACK (a kept-alive client's reads took 44 ms)."""
+    from service.infra.server import shared_port_socket
+
+    async def nodelay_of_an_accepted_connection() -> int:
+        loop = asyncio.get_running_loop()
+        accepted: asyncio.Future[int] = loop.create_future()
+
+        class Accepting(asyncio.Protocol):
+            def connection_made(self, transport: asyncio.BaseTransport) -> None:
+                sock = transport.get_extra_info("socket")
+                accepted.set_result(sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
+
+        port = free_port()
+        server = await loop.create_server(Accepting, sock=shared_port_socket("127.0.0.1", port))
+        async with server:
+            _, writer = await asyncio.open_connection("127.0.0.1", port)
+            try:
+                return await asyncio.wait_for(accepted, 10)
+            finally:
+                writer.close()
+
+    assert asyncio.run(nodelay_of_an_accepted_connection()) != 0
 
 
 def test_run_says_why_when_the_api_dies_before_it_is_ready(tmp_path: Path, runs: list[Run]) -> None:
