@@ -84,6 +84,14 @@ def test_pluggable_map_and_chunks_give_the_same_result(robot, task, bowl):
     assert a.best_params == b.best_params
     assert calls and all(c == 3 for c in calls)
 
+    # the refinement evaluates one parameter set at a time in this process: only the GA's
+    # generations go through map_fn (a Dask round trip per Nelder-Mead point made jobs 20x slower)
+    calls.clear()
+    refined = tune(robot, task, "adaptive", population=10, generations=3, seed=5, map_fn=counting_map, chunks=3)
+    assert any(h.phase == "refine" for h in refined.history)
+    assert calls == [3] * 4  # the initial population and three generations
+    assert refined.best_params == tune(robot, task, "adaptive", population=10, generations=3, seed=5).best_params
+
 
 def test_an_optimum_on_a_search_bound_is_flagged(robot, task, bowl):
     """The bowl's minimum (0.03, 0.2) lies outside these bounds: the GA ends on the bounds and

@@ -107,6 +107,11 @@ def unavailable_reason(exc: BaseException) -> str | None:
         return "the database file cannot be opened"
     if exc.connection_invalidated:
         return "the database connection was lost"
+    if isinstance(exc, OperationalError) and not state and not isinstance(exc.orig, sqlite3.Error):
+        # a database server's driver (psycopg) raises OperationalError without a SQLSTATE only for
+        # its side of the connection: refused, no socket, timed out, closed under it. The server's
+        # own errors all carry a SQLSTATE, and SQLAlchemy classifies none of these at connect time.
+        return "the database server cannot be reached"
     return None
 
 

@@ -36,8 +36,8 @@ class Settings(BaseSettings):
     max_replay_steps: int = Field(
         default=20_000,
         ge=0,
-        description="plans with more steps are not replayed synchronously (the replay costs about 50 us per step: "
-        "1 s for 20,000 steps)",
+        description="plans with more steps are not replayed synchronously (the replay costs about 20-30 us per step: "
+        "0.4-0.6 s for 20,000 steps)",
     )
     dask_scheduler: str | None = Field(
         default=None,

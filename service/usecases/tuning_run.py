@@ -148,12 +148,17 @@ class _Job:
 
         def written(done: TuneProgress) -> None:
             self.records += 1
+            if self.shutdown.is_set():  # sooner than the watcher's next look: stop inside the next generation
+                self.termination.cancel("shutdown")
+            if done.phase == "refine":  # its records continue the GA's numbering
+                step = f"refinement round {done.generation - generations}"
+            else:
+                step = f"generation {done.generation}/{generations}"
             log.info(
-                "job %s: %s generation %d/%d, best B %.6g, %d feasible",
+                "job %s: %s %s, best B %.6g, %d feasible",
                 self.claim.job_id,
                 method,
-                done.generation,
-                generations,
+                step,
                 done.best_objective_b,
                 done.feasible,
             )

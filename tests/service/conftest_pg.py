@@ -1,6 +1,7 @@
 """A throwaway PostgreSQL cluster for the tests: ``tests/postgres/setup.sh`` makes sure the server
 binaries exist (apt-get on a clean Debian machine), then ``initdb`` a cluster in a temp dir, start
-it on a free port on 127.0.0.1 and on a unix socket in that dir, and stop it at the end.
+it on a free port on 127.0.0.1 and on a unix socket in that dir, and stop it at the end (a test
+with a cluster of its own may stop and start it in between: an outage).
 
 PostgreSQL refuses to run as root: as root, initdb/pg_ctl run as the ``postgres`` OS user
 (``runuser``) and the temp dir belongs to it. If PostgreSQL cannot be installed or started the
@@ -15,7 +16,6 @@ import subprocess
 import tempfile
 import uuid
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -51,47 +51,59 @@ def bin_dir() -> Path:
     return Path(lines[-1])
 
 
-@contextmanager
-def postgres_cluster() -> Iterator[str]:
-    """Start a cluster, yield the URL of its ``spacearm`` database, stop the cluster."""
-    bindir = bin_dir()
-    as_postgres: list[str] = []
-    if os.geteuid() == 0:
-        if shutil.which("runuser") is None:
-            raise PostgresUnavailableError("running as root but runuser is missing (postgres refuses to run as root)")
-        as_postgres = ["runuser", "-u", "postgres", "--"]
-    # in /tmp: the postgres user must reach it, and unix socket paths are limited to ~100 chars
-    base = Path(tempfile.mkdtemp(prefix="spacearm-pg-", dir="/tmp" if Path("/tmp").is_dir() else None))
-    data, log = base / "data", base / "server.log"
-    port = free_port()
-    started = False
-    try:
-        if as_postgres:
-            shutil.chown(base, "postgres", "postgres")
-        base.chmod(0o700)
-        _run([*as_postgres, str(bindir / "initdb"), "-D", str(data), "-U", DB_USER, "-A", "trust", "-E", "UTF8", "--no-sync"])
+class Cluster:
+    """A throwaway cluster in a temp dir that a test may stop and start again (an outage)."""
+
+    def __init__(self) -> None:
+        self.bindir = bin_dir()
+        self.as_postgres: list[str] = []
+        if os.geteuid() == 0:
+            if shutil.which("runuser") is None:
+                raise PostgresUnavailableError("running as root but runuser is missing (postgres refuses to run as root)")
+            self.as_postgres = ["runuser", "-u", "postgres", "--"]
+        # in /tmp: the postgres user must reach it, and unix socket paths are limited to ~100 chars
+        self.base = Path(tempfile.mkdtemp(prefix="spacearm-pg-", dir="/tmp" if Path("/tmp").is_dir() else None))
+        self.data, self.log = self.base / "data", self.base / "server.log"
+        self.port = free_port()
+        self.running = False
+        initdb = [str(self.bindir / "initdb"), "-D", str(self.data), "-U", DB_USER, "-A", "trust", "-E", "UTF8", "--no-sync"]
+        try:
+            if self.as_postgres:
+                shutil.chown(self.base, "postgres", "postgres")
+            self.base.chmod(0o700)
+            _run([*self.as_postgres, *initdb])
+        except BaseException:
+            shutil.rmtree(self.base, ignore_errors=True)
+            raise
+        #: the superuser's URL of the ``postgres`` database, over the unix socket
+        self.admin_url = f"postgresql+psycopg://{DB_USER}@/postgres?host={self.base}&port={self.port}"
+
+    def start(self) -> None:
         options = (
-            f"-p {port} -k {base} -c listen_addresses=127.0.0.1 -c fsync=off -c synchronous_commit=off "
+            f"-p {self.port} -k {self.base} -c listen_addresses=127.0.0.1 -c fsync=off -c synchronous_commit=off "
             "-c full_page_writes=off -c max_connections=100"
         )
+        ctl = [str(self.bindir / "pg_ctl"), "-D", str(self.data), "-l", str(self.log), "-o", options, "-w", "-t", "60"]
         try:
-            _run(
-                [*as_postgres, str(bindir / "pg_ctl"), "-D", str(data), "-l", str(log), "-o", options, "-w", "-t", "60", "start"]
-            )
+            _run([*self.as_postgres, *ctl, "start"])
         except PostgresUnavailableError as exc:
-            server_log = log.read_text() if log.exists() else ""
+            server_log = self.log.read_text() if self.log.exists() else ""
             raise PostgresUnavailableError(f"{exc}\nserver log:\n{server_log}") from None
-        started = True
-        admin = f"postgresql+psycopg://{DB_USER}@/postgres?host={base}&port={port}"
-        yield create_database(admin, "spacearm")
-    finally:
-        if started:
-            subprocess.run(
-                [*as_postgres, str(bindir / "pg_ctl"), "-D", str(data), "-m", "fast", "-w", "stop"],
-                capture_output=True,
-                timeout=60,
-            )
-        shutil.rmtree(base, ignore_errors=True)
+        self.running = True
+
+    def stop(self) -> None:
+        """``pg_ctl stop -m fast``: sessions are ended, new connections refused."""
+        subprocess.run(
+            [*self.as_postgres, str(self.bindir / "pg_ctl"), "-D", str(self.data), "-m", "fast", "-w", "stop"],
+            capture_output=True,
+            timeout=60,
+        )
+        self.running = False
+
+    def remove(self) -> None:
+        if self.running:
+            self.stop()
+        shutil.rmtree(self.base, ignore_errors=True)
 
 
 def create_database(url: str, name: str | None = None) -> str:
@@ -113,21 +125,42 @@ def postgres_url() -> Iterator[str]:
     if external:
         yield create_database(external)
         return
+    cluster = started_cluster()
     try:
-        cluster = postgres_cluster()
-        url = cluster.__enter__()
-    except PostgresUnavailableError as exc:
-        message = f"PostgreSQL is not available: {exc}"
-        if os.environ.get("CI", "").lower() in ("true", "1"):
-            pytest.fail(message)
-        pytest.skip(message)
-    try:
-        yield url
+        yield create_database(cluster.admin_url, "spacearm")
     finally:
-        cluster.__exit__(None, None, None)
+        cluster.remove()
 
 
 @pytest.fixture
 def pg_url(postgres_url: str) -> str:
     """A fresh database of its own for one test, on the session's cluster."""
     return create_database(postgres_url)
+
+
+def started_cluster() -> Cluster:
+    """A started cluster; if PostgreSQL cannot be installed or started, the test fails when
+    ``CI=true`` and is skipped otherwise."""
+    cluster = None
+    try:
+        cluster = Cluster()
+        cluster.start()
+    except PostgresUnavailableError as exc:
+        if cluster is not None:
+            cluster.remove()
+        message = f"PostgreSQL is not available: {exc}"
+        if os.environ.get("CI", "").lower() in ("true", "1"):
+            pytest.fail(message)
+        pytest.skip(message)
+    return cluster
+
+
+@pytest.fixture
+def own_cluster() -> Iterator[Cluster]:
+    """A running cluster of this test's own, which it may stop and start (the session's cluster
+    serves other tests); never an external server."""
+    cluster = started_cluster()
+    try:
+        yield cluster
+    finally:
+        cluster.remove()

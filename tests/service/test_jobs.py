@@ -184,6 +184,10 @@ def test_sigterm_requeues_the_running_job(make_stack: Callable[..., Stack]) -> N
         job = client.post("/v1/tuning-jobs", json=LONG).json()
         wait_for(lambda: client.get(f"/v1/tuning-jobs/{job['id']}").json()["progress"]["generation"] >= 2)
         assert worker.stop(signal.SIGTERM) == 0
+        # stopped inside the generation that was running (the plans see the termination), or
+        # right after it: not after the watcher's next look a second later (~30 more generations)
+        after_signal = worker.log.read_text().split("stopping after the current generation", 1)[1]
+        assert sum("generation" in line for line in after_signal.splitlines() if f"job {job['id']}:" in line) <= 1, after_signal
         back = client.get(f"/v1/tuning-jobs/{job['id']}").json()
         assert back["status"] == "queued" and back["attempts"] == 0
         # a new worker takes it at once (no lease to wait for); cancel it to finish quickly

@@ -15,10 +15,11 @@ from service.infra.db import Database, make_engine
 from service.infra.migrate import current_revision, downgrade, head_revision, upgrade
 from service.models import TuningJob
 from tests.service.conftest import PAPER_TASK, Stack, wait_for
-from tests.service.conftest_pg import pg_url, postgres_url  # noqa: F401  (fixtures)
+from tests.service.conftest_pg import Cluster, create_database, own_cluster, pg_url, postgres_url  # noqa: F401  (fixtures)
 from tests.service.test_jobs import two_workers_share_the_queue, worker_killed_mid_job_another_finishes
 from tests.service.test_migrations import TABLES
 from tests.service.test_queue import add_jobs, claim_concurrently
+from tests.service.test_reliability import worker_outlives_an_outage
 
 
 def test_pg_upgrade_downgrade_roundtrip(pg_url: str) -> None:  # noqa: F811
@@ -135,3 +136,13 @@ def test_pg_expired_lease_and_timezones(pg_url: str) -> None:  # noqa: F811
 
 def test_pg_worker_killed_mid_job_another_finishes(make_stack: Callable[..., Stack], pg_url: str) -> None:  # noqa: F811
     worker_killed_mid_job_another_finishes(make_stack(lease_seconds=1.0, database_url=pg_url))
+
+
+def test_pg_server_stopped_and_started_again_under_the_api_and_a_worker(
+    make_stack: Callable[..., Stack],
+    own_cluster: Cluster,  # noqa: F811
+) -> None:
+    """``pg_ctl stop -m fast`` (sessions ended, connections refused) under a running API and worker,
+    idle and mid-job: 503s, a worker that waits and gives its job back, no process exits."""
+    stack = make_stack(lease_seconds=3.0, database_url=create_database(own_cluster.admin_url))
+    worker_outlives_an_outage(stack, own_cluster.stop, own_cluster.start, "cannot be reached")

@@ -34,15 +34,17 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+import sqlalchemy
 from fastapi.testclient import TestClient
 
 import engine
 from engine.kernels.jit import CACHE_DIR, source_hash
 from service.app import create_app
 from service.infra import jsonio
+from service.infra.db import is_database_fault, make_engine, unavailable_reason
 from service.infra.migrate import upgrade
 from service.infra.settings import Settings
-from tests.service.conftest import PAPER_TASK, ROOT, Stack, job_body, wait_for, wait_status
+from tests.service.conftest import PAPER_TASK, ROOT, Stack, free_port, job_body, wait_for, wait_status
 
 PROBLEM = "application/problem+json"
 NOBODY = 65534  # the unprivileged user a root test runs the API as (file permissions do not bind root)
@@ -288,6 +290,30 @@ def test_an_exhausted_connection_pool_is_a_503_then_recovers(tmp_path: Path) -> 
 # --- database faults
 
 
+def test_a_refused_connection_is_a_database_fault_and_a_bad_statement_is_not(tmp_path: Path) -> None:
+    """The drivers' own exceptions: psycopg's "connection refused" carries no SQLSTATE and SQLAlchemy
+    does not call it a disconnect at connect time; the workers must still wait it out (they exited
+    on it). SQLite's errors of the statement itself are the work's, not the database's."""
+    refused = make_engine(f"postgresql+psycopg://nobody@127.0.0.1:{free_port()}/none?connect_timeout=5")
+    try:
+        with pytest.raises(sqlalchemy.exc.OperationalError) as caught:
+            refused.connect()
+    finally:
+        refused.dispose()
+    assert getattr(caught.value.orig, "sqlstate", None) is None and not caught.value.connection_invalidated
+    assert unavailable_reason(caught.value) == "the database server cannot be reached"
+    assert is_database_fault(caught.value)
+
+    local = make_engine(f"sqlite:///{tmp_path / 'x.db'}", create=True)
+    try:
+        for statement in ("SELECT * FROM no_such_table", "SELEC 1"):
+            with pytest.raises(sqlalchemy.exc.OperationalError) as caught, local.connect() as conn:
+                conn.exec_driver_sql(statement)
+            assert unavailable_reason(caught.value) is None and not is_database_fault(caught.value), statement
+    finally:
+        local.dispose()
+
+
 def test_deleted_database_is_a_503_and_restored_or_replaced_without_restart(make_stack: Callable[..., Stack]) -> None:
     stack = make_stack()
     stack.start_api()
@@ -466,9 +492,17 @@ def test_full_disk_is_a_503_and_writes_resume_when_space_is_freed(tmp_path: Path
 
 def test_worker_outlives_a_missing_database_and_gives_its_job_back(make_stack: Callable[..., Stack]) -> None:
     stack = make_stack(lease_seconds=3.0)
+    path, away = stack.db_path, stack.db_path.with_name("away.db")
+    worker_outlives_an_outage(stack, lambda: path.rename(away), lambda: away.rename(path), "missing")
+
+
+def worker_outlives_an_outage(stack: Stack, go: Callable[[], object], come_back: Callable[[], object], word: str) -> None:
+    """The database goes (``go``) twice under a running API and worker, once while the worker is
+    idle and once while it runs a job: the API answers 503 with ``Retry-After`` (its detail says
+    ``word``), the worker waits, gives the job back, and runs it to the end once the database is
+    back (``come_back``); neither process exits or needs a restart."""
     stack.start_api()
     worker = stack.start_worker()
-    path, away = stack.db_path, stack.db_path.with_name("away.db")
 
     def logged(text: str) -> int:
         return worker.log.read_text().count(text)
@@ -477,27 +511,31 @@ def test_worker_outlives_a_missing_database_and_gives_its_job_back(make_stack: C
         # idle: the worker polls a database that has gone, and waits for it with backoff
         first = c.post("/v1/tuning-jobs", json=job_body()).json()
         wait_status(c, first["id"], ("succeeded",), timeout=300)  # the worker is up and claiming
-        path.rename(away)
-        wait_for(lambda: logged("the database is unavailable") >= 4, timeout=60)
-        assert worker.popen.poll() is None
-        away.rename(path)
+        go()
+        wait_for(lambda: logged("the database is unavailable") >= 4 or worker.popen.poll() is not None, timeout=60)
+        assert worker.popen.poll() is None, worker.log.read_text()[-3000:]
+        assert_unavailable(c.get("/v1/robots"), word)
+        assert_unavailable(c.post("/v1/plans", json=SMALL_PLAN), word)
+        come_back()
+        assert wait_for(lambda: c.get("/v1/robots").status_code == 200, timeout=30)  # the API recovers by itself
 
         # busy: a job running, another queued behind it; the database goes while the first runs
         running = c.post("/v1/tuning-jobs", json=job_body(population=8, generations=60, compare=False, dt_s=0.01)).json()
         wait_status(c, running["id"], ("running",))
         queued = c.post("/v1/tuning-jobs", json=job_body()).json()
-        path.rename(away)
+        go()
         # the GA stops, and the worker tries to give the job back until the database answers
-        wait_for(lambda: logged(f"job {running['id']}: giving it back: the database is unavailable") >= 3, timeout=60)
-        assert worker.popen.poll() is None
-        away.rename(path)
+        giving_back = f"job {running['id']}: giving it back: the database is unavailable"
+        wait_for(lambda: logged(giving_back) >= 3 or worker.popen.poll() is not None, timeout=60)
+        assert worker.popen.poll() is None, worker.log.read_text()[-3000:]
+        come_back()
         for job in (running, queued):
             done = wait_status(c, job["id"], ("succeeded", "failed", "cancelled"), timeout=120)
             assert done["status"] == "succeeded", done
         # given back (a fault is not the job's attempt), claimed again, run to the end
         assert c.get(f"/v1/tuning-jobs/{running['id']}").json()["attempts"] == 1
     assert logged(f"job {running['id']}: requeued") == 1 and logged(f"job {running['id']} claimed") == 2
-    assert worker.popen.poll() is None
+    assert worker.popen.poll() is None and stack.api is not None and stack.api.popen.poll() is None
     print("\nworker log while the database was away:")
     print("\n".join(line for line in worker.log.read_text().splitlines() if "unavailable" in line or "requeued" in line))
 
