@@ -63,7 +63,13 @@ class GASettings(Input):
         default=16, ge=2, le=MAX_BITS_PER_GENE, description="bits coding each parameter over its search interval"
     )
     elitism: int = Field(default=1, ge=0, description="best individuals kept unchanged; < population")
-    seed: int | None = Field(default=0, ge=0, le=2**63 - 1, description="null for a random seed")
+    seed: int | None = Field(
+        default=0,
+        ge=0,
+        le=2**63 - 1,
+        description="null for a random seed: drawn once per job (from its id), so a job given back to the queue runs "
+        "the same GA again; the result's `seed` says which",
+    )
 
     def to_engine(self) -> ga.GASettings:
         return ga.GASettings(
@@ -379,6 +385,11 @@ class TuningJobResult(Output):
     robust: RobustTuningOut | None = Field(
         default=None, description="robust tuning's figures (a job with `uncertainty`); null otherwise"
     )
+    seed: int | None = Field(
+        default=None,
+        description="the GA's seed: the request's, or the one drawn for `ga.seed` null (send it to run the same GA "
+        "again); null in results stored before it was recorded",
+    )
 
     @classmethod
     def from_engine(
@@ -432,6 +443,7 @@ class TuningJobResult(Output):
             {
                 "status": status,
                 "message": message,
+                "seed": tuned.seed if isinstance(tuned.seed, int) else None,
                 "best_params": params_out(tuned.best_params),
                 "best_objective_b": number(tuned.best_objective_b),
                 "best_metrics": [metrics_out(m) for m in tuned.best_metrics],

@@ -16,6 +16,7 @@ once the database answers again (retried with backoff), instead of failing it.""
 from __future__ import annotations
 
 import contextvars
+import hashlib
 import logging
 import random
 import threading
@@ -60,6 +61,13 @@ def with_retries(fn: Callable[[], T], stop: threading.Event, deadline_s: float, 
             log.warning("%s: the database is unavailable (%s); retrying in %.1f s", what, unavailable_reason(exc), delay)
             stop.wait(delay * (0.5 + random.random()))
             delay = min(delay * 2.0, 10.0)
+
+
+def job_seed(job_id: str) -> int:
+    """The GA's seed of a job submitted with ``ga.seed`` null: random across jobs, but the same
+    for every run of one job (a job given back to the queue runs the same GA again, so the
+    generations its event stream has sent stay true), in [0, 2**63)."""
+    return int.from_bytes(hashlib.sha256(job_id.encode()).digest()[:8], "big") >> 1
 
 
 def describe(exc: Exception) -> str:
@@ -184,10 +192,9 @@ class _Job:
             }
             self.write(jsonio.clean(progress), jsonio.clean(row))
 
-        ga = BinaryGA(problem.bounds, body.ga.to_engine(), body.ga.seed)
-        return run(
-            problem, ga, self.termination, callback=written, map_fn=map_fn, chunks=chunks, seed=body.ga.seed, refine=body.refine
-        )
+        seed = job_seed(self.claim.job_id) if body.ga.seed is None else body.ga.seed
+        ga = BinaryGA(problem.bounds, body.ga.to_engine(), seed)
+        return run(problem, ga, self.termination, callback=written, map_fn=map_fn, chunks=chunks, seed=seed, refine=body.refine)
 
 
 def cancelled_result(body: TuningJobRequest, results: list[TuneResult], evaluations: int) -> dict[str, Any] | None:

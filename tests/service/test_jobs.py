@@ -10,6 +10,7 @@ import pytest
 from sqlalchemy import text
 
 from service.infra.db import make_engine
+from service.usecases.tuning_run import job_seed
 from tests.service.conftest import PAPER_TASK, Stack, job_body, wait_for, wait_status
 
 # A job long enough to be interrupted (about 0.03 s per generation, 1000 generations, twice).
@@ -41,6 +42,8 @@ def test_job_succeeds_with_result(client: httpx.Client, stack: Stack) -> None:
     assert result["dls_baseline"]["lambda"] > 0 and result["dls_baseline"]["objective_b"] > 0
     assert isinstance(result["improvement_over_dls_percent"], float)
     assert len(result["best_metrics"]) == 1 and result["best_metrics"][0]["joint_speed_limit_respected"]
+
+    assert result["seed"] == 1  # job_body's
 
     listing = client.get("/v1/tuning-jobs", params={"status": "succeeded"}).json()
     assert job["id"] in [j["id"] for j in listing["items"]]
@@ -170,6 +173,25 @@ def worker_killed_mid_job_another_finishes(stack: Stack) -> None:
     finally:
         engine.dispose()
     assert [tuple(r) for r in rows] == [("succeeded", 2, 1, None)]  # PostgreSQL says True: == 1
+
+
+def test_a_random_seed_is_drawn_once_per_job_and_reported(client: httpx.Client) -> None:
+    """``ga.seed`` null: the seed comes from the job's id (every run of the job, a requeued one
+    too, runs the same GA), the result reports it, and a job sent with it runs the same GA."""
+    body = job_body(population=4, generations=3, compare=False)
+    drawn = []
+    for _ in range(2):
+        job = client.post("/v1/tuning-jobs", json={**body, "ga": {**body["ga"], "seed": None}}).json()
+        assert wait_status(client, job["id"], ("succeeded", "failed"))["status"] == "succeeded"
+        result = client.get(f"/v1/tuning-jobs/{job['id']}/result").json()
+        assert result["seed"] == job_seed(job["id"]), result["seed"]
+        drawn.append(result)
+    assert drawn[0]["seed"] != drawn[1]["seed"]  # random across jobs
+    again = client.post("/v1/tuning-jobs", json={**body, "ga": {**body["ga"], "seed": drawn[0]["seed"]}}).json()
+    assert wait_status(client, again["id"], ("succeeded", "failed"))["status"] == "succeeded"
+    same = client.get(f"/v1/tuning-jobs/{again['id']}/result").json()
+    assert same["seed"] == drawn[0]["seed"]
+    assert same["best_params"] == drawn[0]["best_params"] and same["history"] == drawn[0]["history"]
 
 
 def test_worker_killed_mid_job_another_finishes(make_stack: Callable[..., Stack]) -> None:
