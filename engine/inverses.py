@@ -113,10 +113,17 @@ class Param:
         arr = np.asarray(value, dtype=float)
         if not np.all(np.isfinite(arr)):
             raise ParameterError(label, "must be finite")
-        below = arr <= self.low if self.low_open else arr < self.low
-        if np.any(below) or np.any(arr > self.high):
+        outside = (arr <= self.low if self.low_open else arr < self.low) | (arr > self.high)
+        if np.any(outside):
             bracket = "(" if self.low_open else "["
-            raise ParameterError(label, f"must be in {bracket}{self.low}, {self.high}], got {arr.tolist()}")
+            bad = arr[outside]
+            # the first offending value, not the whole array (a landscape axis has up to 128)
+            got = (
+                f"{bad.flat[0]!r}" + (f" and {bad.size - 1} more of {arr.size}" if bad.size > 1 else "")
+                if arr.ndim
+                else repr(float(arr))
+            )
+            raise ParameterError(label, f"must be in {bracket}{self.low}, {self.high}], got {got}")
         return arr
 
 

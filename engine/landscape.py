@@ -99,7 +99,8 @@ def landscape(
     others = {name: p for name, p in known.items() if name not in (x_name, y_name)}
     unknown = set(fixed or {}) - set(others)
     if unknown:
-        raise ParameterError(f"fixed.{min(unknown)}", f"not a further parameter of {method}; these are: {', '.join(others)}")
+        further = f"these are: {', '.join(others)}" if others else f"{method} has none besides {x_name} and {y_name}"
+        raise ParameterError(f"fixed.{min(unknown)}", f"not a further parameter of {method} (the axes' are not); {further}")
     fixed_values = {name: float((fixed or {}).get(name, p.default)) for name, p in others.items()}
     for name, value in fixed_values.items():
         others[name].check(np.array([value]), f"fixed.{name}")

@@ -8,7 +8,8 @@ they work with any number of API processes and workers; a process keeps at most
 - ``status`` (no id): a snapshot of the job (status, attempts, progress summary) when the
   stream opens and whenever its status, attempt, cancellation or error changes;
 - ``generation`` (id ``<attempt>.<n>``, the n-th record of that attempt): one per finished
-  generation of each GA phase, with the phase, its generation count and B;
+  generation of each GA phase, with the phase, its generation count and B, and each round of the
+  refinement after it (``stage`` ``refine``, numbered on from the GA's last generation);
 - ``end`` (no id): the job's final status; the stream then closes.
 
 A comment line is sent after :attr:`Settings.sse_heartbeat_s` without events, so proxies keep
@@ -91,11 +92,12 @@ async def stream_start(
     response_class=EventSourceResponse,
     summary="Live progress of a tuning job (Server-Sent Events)",
     description="A `text/event-stream`: `status` events (a snapshot when the stream opens and at every change of "
-    "status), one `generation` event per finished GA generation (id `<attempt>.<record>`, data: phase, role, "
-    "generation, generations, best and mean B, feasible count), then `end` with the final status, and the stream "
-    "closes. Heartbeat comments keep idle connections open. Resume with `Last-Event-ID` (an EventSource sends it "
-    "when it reconnects) or `?last_event_id=`; an id this job never sent is a 422. Each API process keeps at most "
-    "`SPACEARM_MAX_EVENT_STREAMS` streams open: beyond, a 503 with `Retry-After`.",
+    "status), one `generation` event per finished GA generation or refinement round (id `<attempt>.<record>`, "
+    "data: phase, role, stage `ga` or `refine`, generation, generations, best and mean B, feasible count), then "
+    "`end` with the final status, and the stream closes. Heartbeat comments keep idle connections open. Resume "
+    "with `Last-Event-ID` (an EventSource sends it when it reconnects) or `?last_event_id=`; an id this job never "
+    "sent is a 422. Each API process keeps at most `SPACEARM_MAX_EVENT_STREAMS` streams open: beyond, a 503 with "
+    "`Retry-After`.",
     # `schema`, besides the `itemSchema` (one event) FastAPI documents: the whole body as text, which
     # generators that know no event streams (openapi-python-client) type as a string.
     responses={

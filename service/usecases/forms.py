@@ -30,14 +30,18 @@ class FormErrors:
         return bool(self.fields or self.general)
 
 
-def _float(form: dict[str, str], key: str, default: float | None = None) -> float | None:
+def _float(form: dict[str, str], key: str, default: float | None = None) -> float | str | None:
+    """The field's number; its text as typed when that is not a finite number ("abc", "inf",
+    "1e400"), which the API rejects with the field's path (a NaN or an infinity could not even
+    be sent: JSON has none)."""
     text = form.get(key, "").strip()
     if not text:
         return default
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
-        return math.nan  # the API rejects it with a field path
+        return text
+    return value if math.isfinite(value) else text
 
 
 def _preset(form: dict[str, str]) -> presets.TaskPreset:
@@ -53,7 +57,7 @@ def plan_body(form: dict[str, str]) -> dict[str, Any]:
         if value is not None:
             task[key] = value
     method = form.get("method", "adaptive")
-    params: dict[str, float] = {}
+    params: dict[str, float | str] = {}
     for p in pages.method_params(method):
         value = _float(form, f"{method}.{p.name}")
         if value is not None:
@@ -67,8 +71,8 @@ def plan_body(form: dict[str, str]) -> dict[str, Any]:
     }
 
 
-def _integer(value: float | None) -> float | int | None:
-    return int(value) if value is not None and math.isfinite(value) and value == int(value) else value
+def _integer(value: float | str | None) -> float | int | str | None:
+    return int(value) if isinstance(value, float) and value == int(value) else value
 
 
 def job_body(form: dict[str, str]) -> dict[str, Any]:

@@ -34,7 +34,7 @@ from service.queue import TERMINAL
 __all__ = ["TERMINAL", "Event", "JobFeed", "JobFeeds", "Snapshot", "events", "status_summary"]
 
 log = logging.getLogger("spacearm.api")
-ROW_FIELDS = ("seq", "phase", "role", "generation", "best", "mean", "feasible")
+ROW_FIELDS = ("seq", "phase", "role", "stage", "generation", "best", "mean", "feasible")
 RETRY_AFTER_S = 5  # of a 503 when every stream of the process is taken
 
 
@@ -285,6 +285,9 @@ async def events(feed: JobFeed, after: tuple[int, int] | None, heartbeat_s: floa
     attempt = snap.attempt if snap is not None else 0
     sent = after[1] if after is not None and after[0] == attempt else 0
     shown: tuple[Any, ...] | None = None
+    if snap is not None:  # the job as it is, before the generations already run (the backlog)
+        shown = (snap.status, snap.attempts, snap.cancel_requested, snap.error)
+        yield Event("status", {"id": feed.job_id, **status_summary(snap)})
     quiet_since = time.monotonic()
     while True:
         version = feed.version  # before reading: a change while this listener waits to send is not missed

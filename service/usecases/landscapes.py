@@ -10,6 +10,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from engine import landscape
+from engine.inverses import method_spec
 from service import figures
 from service.errors import ApiValidationError, NotFoundError
 from service.infra import jsonio
@@ -73,6 +74,12 @@ def body_json(row: Landscape, grids: dict[str, np.ndarray]) -> bytes:
 
 def create(db: Database, settings: Settings, body: LandscapeRequest) -> tuple[str, bytes]:
     """Compute and store a landscape: its id and JSON body."""
+    params = {p.name: p for p in method_spec(body.method).params}
+    for name, axis in (("x", body.x), ("y", body.y)):
+        with located(axis, "body", name):
+            if axis.name in params:  # each bound against the parameter's range: the error names the bound
+                for bound in ("min", "max"):
+                    params[axis.name].check(float(getattr(axis, bound)), bound)
     with located(body.x, "body", "x"):
         x_values = body.x.values()
     with located(body.y, "body", "y"):

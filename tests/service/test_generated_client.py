@@ -230,7 +230,7 @@ def test_typescript_client_type_checks_and_runs_the_whole_flow(stack: Stack) -> 
     assert out["phases"] == [["adaptive", "tuned", 2], ["dls", "dls_baseline", 2]]
     assert set(out["best_params"]) == {"lambda_max", "epsilon"} and out["history_length"] == 3
     assert out["best_objective_b"] > 0 and out["dls_lambda"] > 0
-    assert out["event_kinds"] == ["generation"] * 6 + ["status", "end"]  # a finished job's stream
+    assert out["event_kinds"] == ["status"] + ["generation"] * 6 + ["end"]  # a finished job's stream
     assert out["job_figure"] == {"kind": "png", "type": "image/png"}
     assert out["deleted"] == [204, 204, 204]
     assert out["missing_status"] == out["missing_problem_status"] == 404

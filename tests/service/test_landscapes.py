@@ -93,10 +93,15 @@ def test_landscape_errors_name_the_field(client: httpx.Client) -> None:
         _field(client.post("/v1/landscapes", json=landscape_body(x={"name": "lambda_max", "min": 0.2, "max": 0.1})))
         == "body.x.max"
     )
+    # a bound beyond the parameter's range: that bound is named, with its value, not the axis's 32 values
+    beyond = client.post("/v1/landscapes", json=landscape_body(x={"name": "lambda_max", "min": 0.0, "max": 100.0}))
+    assert _field(beyond) == "body.x.max" and beyond.json()["errors"][0]["message"] == "must be in [0.0, 10.0], got 100.0"
     too_fine = {"name": "lambda_max", "min": 0.0, "max": 0.1, "steps": 129}
     assert _field(client.post("/v1/landscapes", json=landscape_body(x=too_fine))) == "body.x.steps"
     assert _field(client.post("/v1/landscapes", json=landscape_body(method="dls"))) == "body.method"
     assert _field(client.post("/v1/landscapes", json=landscape_body(fixed={"nu": 1.0}))) == "body.fixed.nu"
+    axis_fixed = client.post("/v1/landscapes", json=landscape_body(fixed={"lambda_max": 0.05}))
+    assert _field(axis_fixed) == "body.fixed.lambda_max" and "adaptive has none besides" in axis_fixed.text
     unknown_job = client.post("/v1/landscapes", json=landscape_body(tuning_job_id="0" * 32))
     assert _field(unknown_job) == "body.tuning_job_id" and "does not exist" in unknown_job.text
     queued = client.post("/v1/tuning-jobs", json=job_body(population=400, generations=200)).json()["id"]

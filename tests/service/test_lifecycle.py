@@ -79,13 +79,18 @@ def test_events_follow_a_job_from_another_api_process_and_resume(make_stack: Cal
             assert [(g["data"]["role"], g["data"]["generation"]) for g in generations] == [
                 (role, n) for role in ("tuned", "dls_baseline") for n in range(5)
             ]
-            assert all(g["data"]["generations"] == 4 for g in generations)
+            assert all(g["data"]["generations"] == 4 and g["data"]["stage"] == "ga" for g in generations)
             final = [e for e in events if e.get("event") == "status"][-1]["data"]
             assert final["generation"] == final["generations"] == 8
 
             resumed = stream(c2, job["id"], headers={"Last-Event-ID": "1.7"})
             assert [e["id"] for e in resumed if e.get("event") == "generation"] == ["1.8", "1.9", "1.10"]
-            assert resumed[-1]["event"] == "end"
+            assert resumed[0]["event"] == "status" and resumed[-1]["event"] == "end"  # the job's state first
+            # a refined job: the refinement's rounds are generation events of stage refine, numbered on
+            refined = c.post("/v1/tuning-jobs", json={**job_body(population=6, generations=2, compare=False), "refine": True})
+            rows = [e["data"] for e in stream(c2, refined.json()["id"]) if e.get("event") == "generation"]
+            assert [r["stage"] for r in rows[:3]] == ["ga"] * 3 and {r["stage"] for r in rows[3:]} == {"refine"}
+            assert len(rows) > 3 and [r["generation"] for r in rows[2:5]] == [2, 3, 4]
             by_query = stream(c, job["id"], last_event_id="1.10")
             assert [e.get("event") for e in by_query] == ["status", "end"]
             for bad in ("1.11", "2.1", "x", "1"):

@@ -128,6 +128,18 @@ def test_plan_form_errors_stand_next_to_their_fields_once(web: httpx.Client) -> 
     )
     assert r.status_code == 422
     assert text_of(parse(r), "//span[@class='field-error'][@data-field='population']").startswith("must be greater")
+    # text that is no finite number: an error beside its field too (these were a 500: the form sent a NaN or
+    # an infinity, which JSON cannot carry)
+    r = web.post("/web/plans", data={**form, "dls.lambda": "abc", "duration_s": "inf", "dt_s": "1e400"})
+    assert r.status_code == 422, r.text
+    errors = {e.get("data-field"): e.text_content() for e in parse(r).xpath("//span[@class='field-error']")}
+    assert set(errors) == {"dls.lambda", "duration_s", "dt_s"}, errors
+    assert parse(r).xpath("//input[@name='dls.lambda']/@value") == ["abc"]
+    r = web.post(
+        "/web/tuning-jobs", data={"csrf_token": csrf(web), "preset": "paper-line", "population": "ten", "generations": "5"}
+    )
+    assert r.status_code == 422, r.text
+    assert text_of(parse(r), "//span[@class='field-error'][@data-field='population']")
 
 
 def test_failed_plan_page_says_infeasible_and_the_replay_agrees(web: httpx.Client) -> None:
