@@ -127,6 +127,10 @@ class CartesianTask:
             raise ParameterError("duration", f"must be in (0, {MAX_DURATION_S:g}] s")
         if not MIN_DT_S <= self.dt <= 1.0:
             raise ParameterError("dt", f"must be in [{MIN_DT_S:g}, 1] s")
+        if self.dt > self.duration:
+            # one step would cover more than the whole path: the plan would move at the speed of a
+            # path dt long, not the one asked for, and pass limits the path itself breaks
+            raise ParameterError("dt", f"must not exceed the path's duration, {self.duration:g} s")
         if self.joint_speed_limit <= 0.0:
             raise ParameterError("joint_speed_limit", "must be > 0")
         if self.tracks not in TRACKS:

@@ -64,7 +64,13 @@ class TaskIn(Input):
         description="s; line and arc: default 15; waypoints and raster: default the path's own timing, else rescaled to it",
     )
     ramp_time_s: float = Field(default=1.5, ge=0, le=300, description="s, trapezoidal profile only; at most duration_s / 2")
-    dt_s: float = Field(default=0.25, ge=MIN_DT_S, le=1, description="planner step, s; duration_s / dt_s at most 20,000 steps")
+    dt_s: float = Field(
+        default=0.25,
+        ge=MIN_DT_S,
+        le=1,
+        description="planner step, s: at most the path's duration; duration_s / dt_s at most 20,000 steps. The last "
+        "sample is the first multiple of dt_s at or after the duration (the path held at its end after it)",
+    )
     profile: TimeProfile = Field(default="trapezoidal", description="time law of line and arc paths")
     joint_speed_limit_deg_s: float = Field(
         default=6.0, gt=0, le=MAX_MAGNITUDE, description="symmetric speed limit of the revolute joints, deg/s"

@@ -167,6 +167,14 @@ def test_dt_of_one_is_accepted(client: httpx.Client) -> None:
     assert _plan(client, {"dt_s": 1.0, "ramp_time_s": 1.0}).status_code == 201
 
 
+def test_dt_longer_than_the_path_is_refused(client: httpx.Client) -> None:
+    """One step longer than the whole path planned the motion over dt, not the duration asked for:
+    a 10 ms move planned as a 1 s one passed the speed limit it breaks by far."""
+    r = _plan(client, {"dt_s": 1.0, "duration_s": 0.01, "ramp_time_s": 0.0})
+    assert _fields(r) == ["body.task.dt_s"] and "must not exceed the path's duration, 0.01 s" in r.json()["detail"]
+    assert _plan(client, {"dt_s": 0.5, "duration_s": 0.5, "ramp_time_s": 0.0}).status_code == 201  # one step: allowed
+
+
 @pytest.mark.parametrize("ramp", [-0.5, 7.51])
 def test_ramp_between_zero_and_half_duration(client: httpx.Client, ramp: float) -> None:
     assert _fields(_plan(client, {"ramp_time_s": ramp})) == ["body.task.ramp_time_s"]
