@@ -125,7 +125,8 @@ class Metrics(Generic[V]):
     objective_b: V = metric(
         "",
         "objective B = w1 * position term (m) + w2 * attitude term (rad, or m rad with `eq18`), with the plan's "
-        "aggregation; null when the joint speed limit is broken",
+        "aggregation; null (eq. 19's P_l) when a joint speed, joint position or torque limit or the clearance is "
+        "broken, or the plan diverged",
         api="objective_b",
         web=WebRow("objective B", "", 1.0),
     )
