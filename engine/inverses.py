@@ -117,12 +117,11 @@ class Param:
         if np.any(outside):
             bracket = "(" if self.low_open else "["
             bad = arr[outside]
-            # the first offending value, not the whole array (a landscape axis has up to 128)
-            got = (
-                f"{bad.flat[0]!r}" + (f" and {bad.size - 1} more of {arr.size}" if bad.size > 1 else "")
-                if arr.ndim
-                else repr(float(arr))
-            )
+            # the first offending value, not the whole array (a landscape axis has up to 128); as a
+            # float, since numpy's own repr reads np.float64(...)
+            got = repr(float(bad.flat[0]))
+            if bad.size > 1:
+                got += f" and {bad.size - 1} more of {arr.size}"
             raise ParameterError(label, f"must be in {bracket}{self.low}, {self.high}], got {got}")
         return arr
 

@@ -71,6 +71,13 @@ def test_validation_names_the_argument(robot, task, kwargs, field):
     assert info.value.field == field
 
 
+def test_an_axis_beyond_the_range_names_its_first_bad_value(robot, task):
+    """Not the whole axis (up to 128 values), nor numpy's repr of a value."""
+    with pytest.raises(ParameterError) as info:
+        landscape(robot, task, "adaptive", ("lambda_max", [0.05, 20.0, 30.0]), ("epsilon", [0.1, 0.5]))
+    assert info.value.field == "x" and info.value.reason == "must be in [0.0, 10.0], got 20.0 and 1 more of 3"
+
+
 def test_axis_values():
     np.testing.assert_allclose(axis_values(0.0, 1.0, 5), [0.0, 0.25, 0.5, 0.75, 1.0])
     np.testing.assert_allclose(axis_values(0.001, 1.0, 4, "log"), [0.001, 0.01, 0.1, 1.0])

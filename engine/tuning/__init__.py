@@ -154,8 +154,9 @@ def run(
     a time; ``callback(progress)`` after each. Then, with ``refine`` and a feasible best,
     Nelder-Mead from it (:func:`engine.tuning.refine.refine`), the same callback after each of
     its records (``phase`` ``refine``). ``map_fn``/``chunks`` spread the GA's generations; the
-    refinement's evaluations, one parameter set each, run in this process. A run stopped inside a generation keeps the best of the
-    generations done; a run with no feasible individual is a failed result, not an exception."""
+    refinement's evaluations, one parameter set each, run in this process. A run stopped inside
+    a generation keeps the best of the generations done; a run with no feasible individual is a
+    failed result, not an exception."""
     start = time.perf_counter()
     interrupted = False
     search: Refinement | None = None

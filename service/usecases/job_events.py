@@ -259,6 +259,11 @@ class Event:
     id: str | None = None
 
 
+def _status_state(snap: Snapshot) -> tuple[Any, ...]:
+    """What a ``status`` event is sent again for when it changes."""
+    return (snap.status, snap.attempts, snap.cancel_requested, snap.error)
+
+
 def status_summary(snap: Snapshot) -> dict[str, Any]:
     """The data of a ``status`` event."""
     progress = snap.progress
@@ -286,7 +291,7 @@ async def events(feed: JobFeed, after: tuple[int, int] | None, heartbeat_s: floa
     sent = after[1] if after is not None and after[0] == attempt else 0
     shown: tuple[Any, ...] | None = None
     if snap is not None:  # the job as it is, before the generations already run (the backlog)
-        shown = (snap.status, snap.attempts, snap.cancel_requested, snap.error)
+        shown = _status_state(snap)
         yield Event("status", {"id": feed.job_id, **status_summary(snap)})
     quiet_since = time.monotonic()
     while True:
@@ -303,7 +308,7 @@ async def events(feed: JobFeed, after: tuple[int, int] | None, heartbeat_s: floa
                 yield Event("generation", {**data, "generations": snap.generations}, f"{attempt}.{row['seq']}")
                 sent = row["seq"]
                 quiet_since = time.monotonic()
-        state = (snap.status, snap.attempts, snap.cancel_requested, snap.error)
+        state = _status_state(snap)
         if state != shown:
             shown = state
             yield Event("status", {"id": feed.job_id, **status_summary(snap)})

@@ -127,12 +127,16 @@ class _Job:
         if state != "ok":
             self.termination.cancel(state)
 
+    def pass_shutdown_on(self) -> None:
+        """The worker is stopping: end the run (the job goes back to the queue)."""
+        if self.shutdown.is_set():
+            self.termination.cancel("shutdown")
+
     def watch(self, done: threading.Event) -> None:
         """Renew the lease and look for a cancellation every second, and pass a shutdown on."""
         failing_since: float | None = None
         while not done.wait(min(CANCEL_POLL_S, self.lease_seconds / 3.0)):
-            if self.shutdown.is_set():
-                self.termination.cancel("shutdown")
+            self.pass_shutdown_on()
             try:
                 state = queue.heartbeat(self.db, self.claim, self.lease_seconds)
                 failing_since = None
@@ -156,8 +160,7 @@ class _Job:
 
         def written(done: TuneProgress) -> None:
             self.records += 1
-            if self.shutdown.is_set():  # sooner than the watcher's next look: stop inside the next generation
-                self.termination.cancel("shutdown")
+            self.pass_shutdown_on()  # sooner than the watcher's next look: stop inside the next generation
             if done.phase == "refine":  # its records continue the GA's numbering
                 step = f"refinement round {done.generation - generations}"
             else:
