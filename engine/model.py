@@ -470,7 +470,7 @@ class RobotModel:
     def to_urdf(self) -> str:
         """This model as URDF text that :meth:`from_urdf` and Pinocchio read back to the same
         model (see :func:`engine.urdf.dict_to_urdf`)."""
-        return dict_to_urdf(self.to_dict())
+        return dict_to_urdf(self.to_dict(), [self.base.shapes, *(link.shapes for link in self.links)])
 
 
 def table1_robot() -> RobotModel:

@@ -42,13 +42,18 @@ Collision geometry: each link's ``<collision>`` elements become collision shapes
 length>``, ``<sphere radius>``, ``<capsule radius length>`` (along the origin's z axis, as in
 SDF), and ``<mesh filename scale>`` as the convex hull of the mesh, which a ``mesh_hulls``
 callable gives for its file name (the service resolves ``mesh://<id>`` to a stored mesh);
-without one, or for a name it does not know, the element is refused.
+without one, or for a name it does not know, the element is refused. A cylinder with a sphere
+of its radius centred on each end face, in one link, is read as the capsule it makes up.
 
 Writing (:func:`dict_to_urdf`): one URDF link per body with its frame at the joint, parallel to
 the base at q = 0 (so every joint origin is a pure translation), the CoM as the ``inertial``
 origin, and the end effector as a massless link on a fixed joint. Unlimited revolute joints are
 ``continuous``; ``effort`` is the torque (force) limit, 0 where there is none, and ``velocity``
-is written as 0 (unknown).
+is written as 0 (unknown). Each body's collision shapes are its link's ``<collision>`` elements
+in standard URDF (which has no capsule, and Pinocchio's parser refuses ``<capsule>``): a capsule
+is written as a cylinder with a sphere of its radius on each end face, which reading merges back
+into the capsule (their union is exactly that capsule); a convex shape is left out with a comment
+in its link, as URDF carries meshes as files only.
 """
 
 from __future__ import annotations
@@ -58,8 +63,8 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from collections import deque
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from defusedxml import DefusedXmlException
@@ -67,7 +72,10 @@ from defusedxml import ElementTree as SafeET
 
 from engine.bounds import MAX_JOINTS, MAX_URDF_LINKS
 from engine.errors import ParameterError
-from engine.spatial import FloatArray, is_rotation, matrix_to_quaternion
+from engine.spatial import FloatArray, is_rotation, matrix_to_quaternion, quaternion_to_matrix
+
+if TYPE_CHECKING:
+    from engine.geometry import Shape
 
 MAX_URDF_BYTES = 1 << 20
 MAX_DEPTH = 32
@@ -414,7 +422,7 @@ def _collision_shapes(
     """A link's collision geometry as shapes of its body in the model's frame (``U`` turns the
     URDF body frame into the model's, ``com`` the body's CoM in the URDF body frame;
     ``link_pose`` the link's frame in the body's)."""
-    shapes = []
+    shapes: list[dict[str, Any]] = []
     for entry in entries:
         xyz, rpy = entry["origin"]
         T = np.eye(4)
@@ -462,7 +470,44 @@ def _collision_shapes(
                     "quaternion": quaternion,
                 }
             )
-    return shapes
+    return _merged_capsules(shapes)
+
+
+def _merged_capsules(shapes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``shapes`` with each cylinder that has a sphere of its radius centred on each end face
+    replaced by the capsule they make up (how :func:`dict_to_urdf` writes a capsule in standard
+    URDF); the union is exactly that capsule, so this loses nothing whatever wrote them."""
+    out = list(shapes)
+    for cylinder in [s for s in shapes if s["type"] == "cylinder"]:
+        r = cylinder["radius_m"]
+        centre = np.asarray(cylinder["position_m"])
+        half = 0.5 * cylinder["length_m"] * quaternion_to_matrix(cylinder["quaternion"])[:, 2]
+        ends: list[dict[str, Any]] = []
+        for point in (centre - half, centre + half):
+            tol = 1e-9 * max(1.0, float(np.abs(point).max()), r)
+            match = next(
+                (
+                    s
+                    for s in out
+                    if s["type"] == "sphere"
+                    and all(s is not e for e in ends)
+                    and abs(s["radius_m"] - r) <= tol
+                    and float(np.abs(np.asarray(s["position_m"]) - point).max()) <= tol
+                ),
+                None,
+            )
+            if match is None:
+                break
+            ends.append(match)
+        else:
+            out[next(i for i, s in enumerate(out) if s is cylinder)] = {
+                "type": "capsule",
+                "radius_m": r,
+                "from_m": (centre - half).tolist(),
+                "to_m": (centre + half).tolist(),
+            }
+            out = [s for s in out if all(s is not e for e in ends)]
+    return out
 
 
 def _to_dict(
@@ -671,9 +716,11 @@ def _origin(position: Any, rotation: Any = None) -> FloatArray:
     return T
 
 
-def dict_to_urdf(params: dict[str, Any]) -> str:
-    """URDF text of a parameter set (:meth:`engine.model.RobotModel.to_dict`); see the module
-    docstring. Pinocchio and :func:`urdf_to_dict` read it back to the same model."""
+def dict_to_urdf(params: dict[str, Any], body_shapes: Sequence[Sequence[Shape]] = ()) -> str:
+    """URDF text of a parameter set (:meth:`engine.model.RobotModel.to_dict`) with each body's
+    collision shapes (``body_shapes``: the carrier's, then each link's, in the body's frame about
+    its CoM; see the module docstring). Pinocchio and :func:`urdf_to_dict` read it back to the
+    same model."""
     import yourdfpy
     from lxml import etree
 
@@ -681,6 +728,7 @@ def dict_to_urdf(params: dict[str, Any]) -> str:
     joint_names: set[str] = set()
     base = params["base"]
     parent = _unique(base.get("name", "base"), link_names)
+    body_links = [parent]
     robot = yourdfpy.Robot(name=params["name"])
     robot.links.append(
         yourdfpy.Link(
@@ -693,6 +741,7 @@ def dict_to_urdf(params: dict[str, Any]) -> str:
     offset = np.array(base["b"], dtype=float)
     for i, link in enumerate(params["links"]):
         child = _unique(link.get("name") or f"link{i + 1}", link_names)
+        body_links.append(child)
         limits = link.get("limits") or {}
         lower, upper = limits.get("lower"), limits.get("upper")
         kind = link.get("joint_type", "revolute")
@@ -737,4 +786,59 @@ def dict_to_urdf(params: dict[str, Any]) -> str:
         )
     )
     tree = yourdfpy.URDF(robot=robot, build_scene_graph=False, load_meshes=False).write_xml()
+    elements = {element.get("name"): element for element in tree.getroot().iter("link")}
+    # the link frame is at the joint, the CoM at `a`; the carrier's frame is at its CoM
+    coms = [np.zeros(3), *(np.array(link["a"], dtype=float) for link in params["links"])]
+    for element, com, shapes in zip([elements[name] for name in body_links], coms, body_shapes, strict=False):
+        for shape in shapes:
+            _write_collision(element, shape, com, etree)
+    etree.indent(tree)
     return etree.tostring(tree, pretty_print=True, xml_declaration=True, encoding="UTF-8").decode("utf-8")
+
+
+def _write_collision(link: Any, shape: Shape, com: FloatArray, etree: Any) -> None:
+    """Append ``shape`` (in the body's frame about its CoM at ``com`` of the link frame) to the
+    lxml ``link`` element as standard URDF: a capsule as a cylinder and a sphere at each end
+    (:func:`_merged_capsules` reads them back as one capsule), a convex shape as a comment, since
+    URDF carries meshes as files only."""
+
+    def add(geometry: str, position: FloatArray, rotation: FloatArray | None = None, **numbers: Any) -> None:
+        collision = etree.SubElement(link, "collision")
+        origin = {"xyz": _text(com + position)}
+        if rotation is not None:
+            origin["rpy"] = _text(_rpy_of(rotation))
+        etree.SubElement(collision, "origin", origin)
+        etree.SubElement(etree.SubElement(collision, "geometry"), geometry, {k: _text(v) for k, v in numbers.items()})
+
+    if shape.type == "sphere":
+        add("sphere", shape.position, radius=shape.radius)
+    elif shape.type == "box":
+        add("box", shape.position, shape.rotation, size=2.0 * shape.dims)
+    elif shape.type == "cylinder":
+        add("cylinder", shape.position, shape.rotation, radius=shape.dims[0], length=2.0 * shape.dims[1])
+    elif shape.type == "capsule":
+        half = shape.dims[0] * shape.rotation[:, 2]
+        add("cylinder", shape.position, shape.rotation, radius=shape.radius, length=2.0 * shape.dims[0])
+        add("sphere", shape.position - half, radius=shape.radius)
+        add("sphere", shape.position + half, radius=shape.radius)
+    else:
+        count = 0 if shape.vertices is None else shape.vertices.shape[0]
+        link.append(
+            etree.Comment(
+                f" a convex collision shape of {count} vertices is not written: URDF carries meshes as files only "
+                '(store the mesh, POST /v1/meshes, and name it <mesh filename="mesh://<its id>"/>) '
+            )
+        )
+
+
+def _text(values: Any) -> str:
+    """Numbers as URDF attribute text, each exactly (the shortest text that reads back to it)."""
+    return " ".join(repr(float(v)) for v in np.atleast_1d(values))
+
+
+def _rpy_of(R: FloatArray) -> FloatArray:
+    """URDF's roll-pitch-yaw of a rotation matrix (the inverse of :func:`_rpy`)."""
+    pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
+    if math.hypot(R[0, 0], R[1, 0]) < 1e-12:  # gimbal lock: only roll - yaw (or roll + yaw) is defined
+        return np.array([0.0, pitch, math.atan2(-R[0, 1], R[1, 1])])
+    return np.array([math.atan2(R[2, 1], R[2, 2]), pitch, math.atan2(R[1, 0], R[0, 0])])

@@ -12,8 +12,8 @@ from urdf_robots import chain_urdf, pinocchio_from_urdf, pinocchio_gjm_and_pose,
 
 from engine import RobotModel, State, generalized_jacobian, make_inverse, paper_task, plan, table1_robot, urdf_robot
 from engine.kinematics import forward_kinematics
-from engine.model import URDF_PRESETS, urdf_preset_text
-from engine.spatial import exp_so3
+from engine.model import URDF_PRESETS, table1_with_geometry, urdf_preset_text
+from engine.spatial import exp_so3, matrix_to_quaternion
 from engine.urdf import MAX_URDF_BYTES, UrdfError
 
 
@@ -404,3 +404,94 @@ def test_a_mesh_collision_is_the_hull_the_caller_gives():
     (shape,) = model.links[2].shapes
     assert shape.type == "convex"
     np.testing.assert_allclose(np.abs(shape.vertices).max(axis=0), [0.1, 0.2, 0.3])
+
+
+def _assert_same_shapes(ours, theirs):
+    assert [s.type for s in ours] == [s.type for s in theirs]
+    for a, b in zip(ours, theirs, strict=True):
+        assert a.radius == pytest.approx(b.radius, abs=1e-15)
+        np.testing.assert_allclose(a.position, b.position, atol=1e-12)
+        np.testing.assert_allclose(a.dims, b.dims, atol=1e-12)
+        if a.type == "box":
+            np.testing.assert_allclose(a.rotation, b.rotation, atol=1e-12)
+        elif a.type in ("cylinder", "capsule"):  # symmetric about their axis, and end for end
+            np.testing.assert_allclose(
+                a.rotation[:, 2] * np.sign(a.rotation[:, 2] @ b.rotation[:, 2]), b.rotation[:, 2], atol=1e-12
+            )
+
+
+def _every_shape(rng):
+    """A random 4-joint robot whose bodies carry every shape type, turned at random (a box with
+    its x axis straight up too, where roll and yaw are one angle), and a capsule link."""
+    data = random_robot(rng, 4).to_dict()
+    turned = [exp_so3(rng.normal(size=3)) for _ in range(3)] + [exp_so3([0.0, math.pi / 2, 0.0]) @ exp_so3([0.3, 0, 0])]
+    quaternion = [matrix_to_quaternion(R).tolist() for R in turned]
+    data["base"]["collision_box"] = {"size_m": [0.8, 0.6, 0.5], "center_m": [0.0, 0.1, -0.05]}
+    data["base"]["collision_shapes"] = [
+        {"type": "box", "size_m": [0.1, 0.2, 0.3], "position_m": [0.2, 0, 0.4], "quaternion": quaternion[3]}
+    ]
+    data["links"][0]["collision_shapes"] = [
+        {"type": "cylinder", "radius_m": 0.05, "length_m": 0.3, "position_m": [0.01, 0.02, 0.03], "quaternion": quaternion[0]},
+        {"type": "sphere", "radius_m": 0.04, "position_m": [0.1, -0.1, 0.0]},
+    ]
+    data["links"][1]["collision_radius_m"] = 0.03
+    data["links"][2]["collision_shapes"] = [
+        {"type": "capsule", "radius_m": 0.02, "from_m": [0.0, 0.0, 0.0], "to_m": [0.1, 0.2, -0.1]},
+        {"type": "box", "size_m": [0.05, 0.1, 0.2], "position_m": [0.0, 0.05, 0.0], "quaternion": quaternion[1]},
+    ]
+    data["links"][3]["collision_shapes"] = [
+        {
+            "type": "convex",
+            "vertices_m": [[x, y, z] for x in (0, 0.1) for y in (0, 0.1) for z in (0, 0.1)],
+            "quaternion": quaternion[2],
+        }
+    ]
+    return RobotModel.from_dict(data)
+
+
+def test_collision_geometry_round_trips_through_the_export(rng):
+    """The export writes every body's collision shapes as standard URDF: reading it back gives the
+    same shapes (a capsule, written as a cylinder and two end spheres, merged again), and
+    Pinocchio's own collision model of the export (urdfdom, placed by
+    pin.updateGeometryPlacements) puts each written primitive where our forward kinematics puts
+    it. A convex shape is left out with a comment (URDF carries meshes as files only)."""
+    import pinocchio as pin
+
+    for model in (table1_with_geometry(), RobotModel.from_urdf(COLLIDING, end_effector_link="tip"), _every_shape(rng)):
+        text = model.to_urdf()
+        again = RobotModel.from_urdf(text, end_effector_link=model.end_effector_name)
+        _assert_same_model(model, again)
+        bodies = [model.base, *model.links]
+        for ours, theirs in zip(bodies, [again.base, *again.links], strict=True):
+            _assert_same_shapes([s for s in ours.shapes if s.type != "convex"], theirs.shapes)
+        convex = [s for body in bodies for s in body.shapes if s.type == "convex"]
+        assert text.count("a convex collision shape of 8 vertices is not written") == len(convex)
+
+        # Pinocchio: a capsule is three primitives, every other written shape one
+        written = [(j, s) for j, body in enumerate(bodies) for s in body.shapes if s.type != "convex"]
+        pm = pinocchio_from_urdf(text)
+        gm = pin.buildGeomFromUrdfString(pm, text, pin.GeometryType.COLLISION)
+        assert gm.ngeoms == sum(3 if s.type == "capsule" else 1 for _, s in written)
+        state = _random_state(rng, model)
+        fk = forward_kinematics(model, state)
+        centres, attitudes = [fk.base_position, *fk.link_com_positions], [fk.base_attitude, *fk.link_attitudes]
+        data, gdata = pm.createData(), gm.createData()
+        pin.updateGeometryPlacements(pm, data, gm, gdata, pinocchio_state(pm, model, state))
+        placed = iter(range(gm.ngeoms))  # urdfdom keeps each link's collisions in document order
+        for j, shape in written:
+            R, c = attitudes[j], centres[j]
+            half = shape.dims[0] * shape.rotation[:, 2] if shape.type == "capsule" else np.zeros(3)
+            for offset in (0.0, -1.0, 1.0) if shape.type == "capsule" else (0.0,):
+                obj = gm.geometryObjects[next(placed)]
+                placement = gdata.oMg[gm.getGeometryId(obj.name)]
+                assert obj.parentJoint == (1 if j == 0 else j + 1)
+                np.testing.assert_allclose(c + R @ (shape.position + offset * half), placement.translation, atol=1e-12)
+                if shape.type == "box":
+                    np.testing.assert_allclose(R @ shape.rotation, placement.rotation, atol=1e-12)
+                    np.testing.assert_allclose(obj.geometry.halfSide, shape.dims, atol=1e-15)
+                elif offset == 0.0 and shape.type in ("cylinder", "capsule"):
+                    axis = (R @ shape.rotation)[:, 2]
+                    np.testing.assert_allclose(
+                        axis * np.sign(axis @ placement.rotation[:, 2]), placement.rotation[:, 2], atol=1e-12
+                    )
+                    assert obj.geometry.radius == pytest.approx(shape.dims[0] if shape.type == "cylinder" else shape.radius)

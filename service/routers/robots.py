@@ -100,7 +100,10 @@ def get_robot(robot_id: RobotId, session: SessionDep) -> RobotOut:
     operation_id="get_robot_urdf",
     summary="The robot as a URDF document (reads back to the same model here and in Pinocchio)",
     description="The stored robot as URDF text (SI units; revolute, continuous and prismatic joints with their "
-    "limits): `POST /v1/robots` with it in `urdf` (and its end-effector link) stores the same model again.",
+    "limits; each body's collision shapes as `<collision>` elements of standard URDF, a capsule as a cylinder with a "
+    "sphere on each end, which reading merges back into the capsule): `POST /v1/robots` with it in `urdf` (and its "
+    "end-effector link) stores the same model again. A convex (mesh) collision shape is not written, since URDF "
+    "carries meshes as files only; a comment in its link says so.",
     response_class=Response,
     responses={
         200: {"description": "URDF (XML)", "content": {"application/xml": {"schema": {"type": "string"}}}},

@@ -189,3 +189,23 @@ def test_the_raster_target_preset_is_avoided_by_the_bounded_inverse(client: http
     assert p["metrics"]["clearance_respected"] is False and p["metrics"]["clearance_broken_pair"] == ["link6", "obstacle1"]
     assert a["metrics"]["clearance_respected"] is True and a["metrics"]["min_clearance_m"] >= 0.02
     assert a["success"] is True, a["message"]
+
+
+def test_a_robot_exported_as_urdf_and_stored_again_keeps_its_collision_geometry(client: httpx.Client) -> None:
+    """GET .../urdf, then POST it: the stored robot's clearance against the raster-target scene is
+    the original's, pair for pair (docs/robots.md: "read back to the same model")."""
+    text = client.get("/v1/robots/table1-geometry/urdf")
+    assert text.status_code == 200 and "<collision>" in text.text
+    stored = client.post("/v1/robots", json={"urdf": text.text, "name": "table1-geometry-again"})
+    assert stored.status_code == 201, stored.text
+    preset = client.get("/v1/task-presets/raster-target").json()
+    task = {**preset["task"], "dt_s": 0.5}
+    metrics = []
+    for robot_id in ("table1-geometry", stored.json()["id"]):
+        r = client.post("/v1/plans", params={"fields": ""}, json={"robot_id": robot_id, "task": task, "method": preset["method"]})
+        assert r.status_code == 201, r.text
+        metrics.append(r.json()["metrics"])
+    original, again = metrics
+    assert again["min_clearance_pair"] == original["min_clearance_pair"]
+    assert again["min_clearance_m"] == pytest.approx(original["min_clearance_m"], abs=1e-9)
+    assert again["clearance_respected"] is original["clearance_respected"] is True
