@@ -353,8 +353,10 @@ def posed(shape: Shape, rotation: ArrayLike | None = None, position: ArrayLike |
 
 @dataclass(frozen=True)
 class Distance:
-    """A signed distance (m, negative when the shapes overlap) and the closest points of the
-    two shapes' cores, ``(2, 3)`` m (the shapes' surfaces are ``radius`` further in)."""
+    """A signed distance (m; negative when the shapes overlap: minus how far apart they must
+    move to touch) and the closest points of the two shapes' cores, ``(2, 3)`` m (the shapes'
+    surfaces are ``radius`` further in); of cores that intersect, their deepest points (moving
+    ``b`` from its point towards ``a``'s separates them fastest)."""
 
     distance: float
     points: FloatArray

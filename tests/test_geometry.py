@@ -8,6 +8,7 @@ and the null space; the objective's P_l; refusals naming the field."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import zlib
 
@@ -21,6 +22,7 @@ from engine.geometry import Scene, Shape, build_geometry, distance, shape_from_d
 from engine.kernels import chain as chain_kernels
 from engine.kernels import geometry as geometry_kernels
 from engine.kinematics import as_state, forward_kinematics
+from engine.model import table1_with_geometry
 from engine.spatial import exp_so3, log_so3, quaternion_to_matrix
 from engine.trajectory import PAPER_TASK_PARAMS
 
@@ -68,6 +70,8 @@ def _coal_distance(a: Shape, ga: object, b: Shape, gb: object) -> float:
 
     request, result = coal.DistanceRequest(), coal.DistanceResult()
     request.gjk_tolerance = 1e-13
+    request.epa_tolerance = 1e-13  # overlapping pairs: coal's penetration depth (its EPA)
+    request.epa_max_iterations = 1000
     return float(coal.distance(ga, placed(a), gb, placed(b), request, result))
 
 
@@ -77,24 +81,60 @@ POLYTOPES_AND_ROUND = ("sphere", "capsule", "box", "convex")
 @pytest.mark.parametrize("kind_a", POLYTOPES_AND_ROUND)
 @pytest.mark.parametrize("kind_b", POLYTOPES_AND_ROUND)
 def test_distances_equal_coal_to_1e_9(kind_a: str, kind_b: str) -> None:
-    """Random poses; pairs that overlap are left out (coal then gives a penetration depth, ours
-    the cores' overlap, see engine.kernels.geometry). coal's own polytope distances agree with an
-    exact QP to about 1e-11, so 1e-9 is the test's margin."""
+    """Random poses, apart and overlapping: the signed distance equals coal's (its penetration
+    depth where they overlap), and the closest (deepest) points of the cores are the distance
+    less (plus) the radii apart. coal's own polytope distances agree with an exact QP to about
+    1e-11, so 1e-9 is the test's margin."""
     rng = np.random.default_rng(zlib.crc32(f"{kind_a} {kind_b}".encode()))  # not hash(): it changes per process
-    compared = 0
-    for _ in range(120):
+    apart = overlapping = 0
+    for _ in range(300):
         a, ga = _random_shape(rng, kind_a)
         b, gb = _random_shape(rng, kind_b)
         theirs = _coal_distance(a, ga, b, gb)
         ours = distance(a, b)
-        if theirs <= 0.0 or ours.distance <= 0.0:
-            continue
-        compared += 1
         assert ours.distance == pytest.approx(theirs, abs=1e-9), (kind_a, kind_b)
-        # the closest points are on the cores, the radii apart from the reported distance
         gap = float(np.linalg.norm(ours.points[0] - ours.points[1]))
-        assert gap - a.radius - b.radius == pytest.approx(ours.distance, abs=1e-12)
-    assert compared >= 40
+        core = ours.distance + a.radius + b.radius
+        assert gap == pytest.approx(abs(core), abs=1e-12)
+        apart += theirs > 0.0
+        overlapping += core < 0.0  # the cores too, not only the swept spheres: EPA's depth
+    assert apart >= 100
+    assert overlapping >= 1 or (kind_a in ("sphere", "capsule") and kind_b in ("sphere", "capsule"))
+
+
+ALL_KINDS = (*POLYTOPES_AND_ROUND, "cylinder")
+
+
+@pytest.mark.parametrize("kind_a", ALL_KINDS)
+@pytest.mark.parametrize("kind_b", ("box", "convex", "cylinder"))
+def test_an_overlaps_depth_is_the_shortest_way_out(kind_a: str, kind_b: str) -> None:
+    """Overlapping cores (cylinders too, where coal's EPA is no oracle): moving ``b`` along the
+    way out (from ``a``'s deepest point to ``b``'s) by the depth +- 0.1 mm leaves them 0.1 mm
+    apart or overlapping by 0.1 mm, to 1e-8 m, so the depth is attained; and no direction gets
+    out sooner (the depth is the least): moving ``b`` by 99 % of the depth along 200 random
+    directions never separates them. The same for pairs just apart (GJK near contact). With a
+    cylinder EPA ends within its tolerance (1e-7 of the shapes' size) instead of exactly."""
+    rng = np.random.default_rng(zlib.crc32(f"way out {kind_a} {kind_b}".encode()))
+    tolerance = 1e-8 if "cylinder" not in (kind_a, kind_b) else 1e-6
+    checked = 0
+    for _ in range(600):
+        a, _ = _random_shape(rng, kind_a)
+        b, _ = _random_shape(rng, kind_b)
+        ours = distance(a, b)
+        depth = -(ours.distance + a.radius + b.radius)
+        if depth <= 1e-3:
+            continue
+        checked += 1
+        out = (ours.points[0] - ours.points[1]) / depth
+
+        def core_distance(shift: np.ndarray, a: Shape = a, b: Shape = b) -> float:
+            return distance(a, dataclasses.replace(b, position=b.position + shift)).distance + a.radius + b.radius
+
+        assert core_distance((depth + 1e-4) * out) == pytest.approx(1e-4, abs=tolerance)
+        assert core_distance((depth - 1e-4) * out) == pytest.approx(-1e-4, abs=tolerance)
+        for direction in rng.normal(size=(200, 3)):
+            assert core_distance(0.99 * depth * direction / np.linalg.norm(direction)) < 0.0
+    assert checked >= 5
 
 
 def _cylinder_oracle(cyl: Shape, other_points: np.ndarray, rng: np.random.Generator) -> float:
@@ -316,21 +356,23 @@ def test_the_distance_rate_equals_finite_differences_with_the_carriers_reaction(
             witness.append(w)
         return np.array(out), witness, posed, kin, g
 
-    checked = 0
+    checked = overlapping = 0
     for _ in range(10):
         q, qd, A0 = rng.uniform(-2, 2, 6), rng.normal(size=6) * 0.3, exp_so3(rng.normal(size=3))
-        _, witness, posed, kin, g = distances(q, A0)
+        d, witness, posed, kin, g = distances(q, A0)
         w0 = g[1][3:] @ qd
         h = 1e-6
         plus = distances(q + h * qd, exp_so3(w0 * h) @ A0)[0]
         minus = distances(q - h * qd, exp_so3(-w0 * h) @ A0)[0]
         for p, (a, b) in enumerate(geometry.pairs):
             row = np.empty(6)
-            if not geometry_kernels.distance_rate_row(posed[a], posed[b], witness[p], slide, kin, g[1], row):
-                continue  # cores intersect: no normal
+            if not geometry_kernels.distance_rate_row(posed[a], posed[b], witness[p], d[p], slide, kin, g[1], row):
+                continue  # capsules whose segments cross: no normal
             assert row @ qd == pytest.approx((plus[p] - minus[p]) / (2 * h), abs=1e-8)
             checked += 1
+            overlapping += d[p] < -(posed[a, geometry_kernels.RADIUS] + posed[b, geometry_kernels.RADIUS])
     assert checked > 100
+    assert overlapping > 5  # the way out of an overlap (EPA's normal) is checked too
 
 
 def _raster_near_a_panel() -> tuple[RobotModel, CartesianTask, dict]:
@@ -402,3 +444,27 @@ def test_obstacles_for_a_robot_without_shapes_say_so() -> None:
     with pytest.raises(ParameterError, match="no collision shapes") as info:
         plan(table1_robot(), task, make_inverse("dls"))
     assert info.value.field == "task.scene.obstacles"
+
+
+def test_overlaps_have_their_depth_and_fail_a_plan_at_the_default_clearance() -> None:
+    """Cores that intersect report minus their penetration depth, not 0 (a 20 cm box inside the
+    carrier's 1.5 m cube read 0.0, "within 7e-14 mm", so a plan whose obstacle sat inside the
+    carrier respected the default clearance of 0): the analytic depths of a sphere at the cube's
+    centre and of a box inside it, and a paper plan with that box in its scene fails at t = 0."""
+    cube = shape_from_dict({"type": "box", "size_m": [1.5, 1.5, 1.5]})
+    sphere = shape_from_dict({"type": "sphere", "radius_m": 0.1})
+    box = shape_from_dict({"type": "box", "size_m": [0.2, 0.2, 0.2], "position_m": [0.1, 0.0, 0.0]})
+    assert distance(cube, sphere).distance == pytest.approx(-0.85, abs=1e-12)  # out through a face: 0.75 + 0.1
+    assert distance(sphere, cube).distance == pytest.approx(-0.85, abs=1e-12)
+    assert distance(cube, box).distance == pytest.approx(-0.75, abs=1e-12)  # its face at x = 0 to the cube's at 0.75
+    model = table1_with_geometry()
+    base = paper_task(table1_robot())
+    carrier = forward_kinematics(model, as_state(model, base.q0)).base_position
+    inside = {"type": "box", "size_m": [0.2, 0.2, 0.2], "position_m": (carrier + [0.1, 0.0, 0.0]).tolist()}
+    task = CartesianTask(q0=base.q0, path=base.path, dt=base.dt, scene=Scene((shape_from_dict(inside),)))
+    assert task.scene.clearance == 0.0
+    result = plan(model, task, make_inverse("adaptive", lambda_max=0.06, epsilon=0.12))
+    assert not result.success and not result.metrics.clearance_respected
+    assert result.metrics.clearance_broken_pair == ("carrier", "obstacle0") and result.metrics.time_collision == 0.0
+    assert result.clearance[0] == pytest.approx(-0.75, abs=1e-12)  # at the start, as the analytic case
+    assert result.metrics.min_clearance <= result.clearance[0]

@@ -16,8 +16,11 @@ as in Ericson, *Real-Time Collision Detection*, 2005, ch. 5 and 9), the same met
 (hpp-fcl) uses: exact for polytopes, segments and points (it ends when the support point adds
 nothing, to a relative ``1e-12`` of the distance), and converging linearly on cylinders. The
 shapes' distance is the cores' distance less both radii, so it is negative when the swept
-spheres overlap; cores that intersect give ``-(r_a + r_b)`` (the depth is not computed: the
-pair is in collision).
+spheres overlap. Cores that intersect have a negative distance of their own: minus their
+penetration depth (how far apart they must move to touch), by the expanding polytope algorithm
+(EPA) from GJK's last simplex, with their deepest points as witnesses; exact for polytopes (coal's
+to 1e-15), within ``EPA_TOLERANCE`` of the shapes' size with a cylinder. Two segments (spheres,
+capsules) that cross have no depth of their own: ``-(r_a + r_b)``.
 """
 
 from __future__ import annotations
@@ -87,19 +90,20 @@ def support(shape, vertices, dx, dy, dz, out):
         ay = shape[ROT + 5]
         az = shape[ROT + 8]
         along = dx * ax + dy * ay + dz * az
-        px = dx - along * ax
-        py = dy - along * ay
-        pz = dz - along * az
-        norm = np.sqrt(px * px + py * py + pz * pz)
+        # the radial part in the cylinder's own x and y axes: perpendicular to its axis exactly
+        # (the direction less its axial part is, along the axis, rounding noise in any direction)
+        lx = dx * shape[ROT] + dy * shape[ROT + 3] + dz * shape[ROT + 6]
+        ly = dx * shape[ROT + 1] + dy * shape[ROT + 4] + dz * shape[ROT + 7]
+        norm = np.sqrt(lx * lx + ly * ly)
         h = shape[DIMS + 1] if along >= 0.0 else -shape[DIMS + 1]
         x = cx + h * ax
         y = cy + h * ay
         z = cz + h * az
-        if norm > 1e-15 * (abs(dx) + abs(dy) + abs(dz)):
+        if norm > 1e-12 * (abs(dx) + abs(dy) + abs(dz)):  # else the cap's centre: as far as any of it
             rc = shape[DIMS] / norm
-            x += rc * px
-            y += rc * py
-            z += rc * pz
+            x += rc * (lx * shape[ROT] + ly * shape[ROT + 1])
+            y += rc * (lx * shape[ROT + 3] + ly * shape[ROT + 4])
+            z += rc * (lx * shape[ROT + 6] + ly * shape[ROT + 7])
         out[0] = x
         out[1] = y
         out[2] = z
@@ -125,11 +129,25 @@ def support(shape, vertices, dx, dy, dz, out):
     out[2] = cz + shape[ROT + 6] * vx + shape[ROT + 7] * vy + shape[ROT + 8] * vz
 
 
+#: EPA's polytope holds at most this many points (and twice as many faces); the depth found by
+#: then stands (polytopes end sooner, curved cores converge linearly).
+EPA_MAX_POINTS = 128
+EPA_MAX_FACES = 2 * EPA_MAX_POINTS
+#: EPA ends when the support point along the nearest face's normal lies within this fraction of
+#: the polytope's size beyond that face: the depth found is then short of the true one by at most
+#: that (polytopes end exactly; on cylinders the gain per step shrinks slowly, and rounding breaks
+#: a polytope of many nearly coplanar faces before a tighter tolerance is met).
+EPA_TOLERANCE = 1e-7
+
+
 @kernel
 def gjk_buffers():
     """Scratch of :func:`core_distance`: ``(W, A, B (4, 3) simplex points and their shapes'
     points, lam (4,) barycentric weights, tmp (8, 3), kept (3, 4, 3) and kept_lam (4,): the
-    simplex of the last step)``."""
+    simplex of the last step; then EPA's (:func:`_penetration`) points (3, EPA_MAX_POINTS, 3):
+    the polytope's and each shape's, faces (EPA_MAX_FACES, 4) int64: three points and 1 while
+    on the polytope, planes (EPA_MAX_FACES, 4): unit outward normal and the origin's distance,
+    and horizon edges (3 EPA_MAX_FACES, 2) int64)``."""
     return (
         np.empty((4, 3)),
         np.empty((4, 3)),
@@ -138,6 +156,10 @@ def gjk_buffers():
         np.empty((8, 3)),
         np.empty((3, 4, 3)),
         np.empty(4),
+        np.empty((3, EPA_MAX_POINTS, 3)),
+        np.empty((EPA_MAX_FACES, 4), dtype=np.int64),
+        np.empty((EPA_MAX_FACES, 4)),
+        np.empty((3 * EPA_MAX_FACES, 2), dtype=np.int64),
     )
 
 
@@ -256,28 +278,34 @@ def _triangle(W, A, B, lam, i, j, k, idx):
 
 
 @kernel
-def _outside(W, i, j, k, opposite):
-    """Whether the origin and ``W[opposite]`` lie on different sides of plane ``W[i] W[j] W[k]``
-    (the origin strictly outside the tetrahedron through that face)."""
+def _normal(W, i, j, k):
+    """``(W[j] - W[i]) x (W[k] - W[i])``: the normal of triangle ``W[i] W[j] W[k]`` (unnormalised;
+    counter-clockwise seen from where it points)."""
     abx = W[j, 0] - W[i, 0]
     aby = W[j, 1] - W[i, 1]
     abz = W[j, 2] - W[i, 2]
     acx = W[k, 0] - W[i, 0]
     acy = W[k, 1] - W[i, 1]
     acz = W[k, 2] - W[i, 2]
-    nx = aby * acz - abz * acy
-    ny = abz * acx - abx * acz
-    nz = abx * acy - aby * acx
+    return aby * acz - abz * acy, abz * acx - abx * acz, abx * acy - aby * acx
+
+
+@kernel
+def _outside(W, i, j, k, opposite):
+    """Whether the origin and ``W[opposite]`` lie on different sides of plane ``W[i] W[j] W[k]``
+    (the origin strictly outside the tetrahedron through that face)."""
+    nx, ny, nz = _normal(W, i, j, k)
     sign_p = -(W[i, 0] * nx + W[i, 1] * ny + W[i, 2] * nz)
     sign_d = (W[opposite, 0] - W[i, 0]) * nx + (W[opposite, 1] - W[i, 1]) * ny + (W[opposite, 2] - W[i, 2]) * nz
     return sign_p * sign_d < 0.0
 
 
 @kernel
-def _closest(W, A, B, lam, count, idx, best_idx, best_lam):
+def _closest(W, A, B, lam, count, idx, best_idx, best_lam, every_face):
     """Reduce the simplex ``W[:count]`` to the smallest sub-simplex holding its point closest
     to the origin, with that point's barycentric weights in ``lam``; returns the new count (0:
-    the origin is inside a tetrahedron)."""
+    the origin is inside a tetrahedron). ``every_face``: a tetrahedron's nearest face, whatever
+    the sign tests say (for a tetrahedron too flat for them)."""
     for k in range(4):
         lam[k] = 0.0
     if count == 1:
@@ -298,7 +326,7 @@ def _closest(W, A, B, lam, count, idx, best_idx, best_lam):
         k = 2 if face == 3 else 3
         if face == 1:
             j = 2
-        if not _outside(W, i, j, k, face):
+        if not every_face and not _outside(W, i, j, k, face):
             continue
         for m in range(4):
             lam[m] = 0.0
@@ -329,10 +357,11 @@ def _closest(W, A, B, lam, count, idx, best_idx, best_lam):
 
 @kernel
 def core_distance(sa, sb, vertices, buf, witness):
-    """The distance between the cores of posed shapes ``sa`` and ``sb`` (0 when they
-    intersect), their closest points into ``witness (2, 3)`` (``sa``'s, then ``sb``'s). ``buf``:
+    """The distance between the cores of posed shapes ``sa`` and ``sb``, their closest points
+    into ``witness (2, 3)`` (``sa``'s, then ``sb``'s); when they intersect, minus their
+    penetration depth and its deepest points (:func:`_penetration`). ``buf``:
     :func:`gjk_buffers`."""
-    W, A, B, lam, tmp, kept, kept_lam = buf
+    W, A, B, lam, tmp, kept, kept_lam = buf[0], buf[1], buf[2], buf[3], buf[4], buf[5], buf[6]
     pa = tmp[0]
     pb = tmp[1]
     v = tmp[2]
@@ -378,9 +407,15 @@ def core_distance(sa, sb, vertices, buf, witness):
             A[count, r] = pa[r]
             B[count, r] = pb[r]
         count += 1
-        count = _closest(W, A, B, lam, count, idx, best_idx, best_lam)
+        count = _closest(W, A, B, lam, count, idx, best_idx, best_lam, np.bool_(False))
         if count == 0:
-            break  # the origin is inside: the cores intersect
+            # The origin can be inside only if the new point lies beyond it: the simplex before
+            # lies where v . x >= |v|^2. Else a nearly flat tetrahedron (support points crowding
+            # on a cylinder's rim, or cores nearly touching) fooled the sign tests, and cores
+            # 0.1 m apart read as intersecting: its nearest face goes on instead.
+            if v[0] * wx + v[1] * wy + v[2] * wz <= RELATIVE_TOLERANCE * vv:
+                break  # the origin is inside: the cores intersect
+            count = _closest(W, A, B, lam, np.int64(4), idx, best_idx, best_lam, np.bool_(True))
         nx = 0.0
         ny = 0.0
         nz = 0.0
@@ -389,7 +424,7 @@ def core_distance(sa, sb, vertices, buf, witness):
             ny += lam[k] * W[k, 1]
             nz += lam[k] * W[k, 2]
         new = nx * nx + ny * ny + nz * nz
-        if count > 1 and not new < vv:
+        if not new < vv:  # (vv is inf on the first step)
             # no progress (rounding, or a nearly flat tetrahedron whose faces the sign tests
             # misjudge): the last step's simplex and point stand
             count = kept_count
@@ -406,7 +441,11 @@ def core_distance(sa, sb, vertices, buf, witness):
         if count == 4 or new <= 1e-24 * scale:
             count = 0 if count == 4 else count
             break
-    if count == 0:  # no closest points: one point of the overlap for both (no normal either)
+    if count == 0:  # the origin is inside the tetrahedron W: the cores intersect
+        depth = _penetration(sa, sb, vertices, buf, np.int64(4), witness)
+        if depth > 0.0:
+            return -depth
+        # a flat tetrahedron (cores that barely touch): one point of the overlap for both, no normal
         for r in range(3):
             acc = 0.0
             for k in range(4):
@@ -425,7 +464,262 @@ def core_distance(sa, sb, vertices, buf, witness):
     dx = witness[0, 0] - witness[1, 0]
     dy = witness[0, 1] - witness[1, 1]
     dz = witness[0, 2] - witness[1, 2]
-    return np.sqrt(dx * dx + dy * dy + dz * dz)
+    gap = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if gap <= 1e-9 * np.sqrt(scale):  # the origin on a smaller simplex: touching, or inside
+        depth = _penetration(sa, sb, vertices, buf, np.int64(count), tmp[5:7])
+        if depth > 0.0:
+            for r in range(3):
+                witness[0, r] = tmp[5, r]
+                witness[1, r] = tmp[6, r]
+            return -depth
+    return gap
+
+
+@kernel
+def _face(P, faces, planes, f, i, j, k):
+    """Make face ``f`` of EPA's polytope the triangle ``P[i] P[j] P[k]`` (counter-clockwise seen
+    from outside): its unit normal and the origin's distance to its plane into ``planes[f]``.
+    False when the three points are (nearly) on one line."""
+    nx, ny, nz = _normal(P, i, j, k)
+    norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+    faces[f, 0] = i
+    faces[f, 1] = j
+    faces[f, 2] = k
+    faces[f, 3] = 1
+    uu = (P[j, 0] - P[i, 0]) ** 2 + (P[j, 1] - P[i, 1]) ** 2 + (P[j, 2] - P[i, 2]) ** 2
+    vv = (P[k, 0] - P[i, 0]) ** 2 + (P[k, 1] - P[i, 1]) ** 2 + (P[k, 2] - P[i, 2]) ** 2
+    if not norm > 1e-14 * np.sqrt(uu * vv):
+        return False
+    planes[f, 0] = nx / norm
+    planes[f, 1] = ny / norm
+    planes[f, 2] = nz / norm
+    planes[f, 3] = (nx * P[i, 0] + ny * P[i, 1] + nz * P[i, 2]) / norm
+    return True
+
+
+@kernel
+def _support_point(sa, sb, vertices, dx, dy, dz, points, m, tmp):
+    """Point ``m`` of EPA's ``points``: the cores' difference farthest along ``(dx, dy, dz)``,
+    and each core's point behind it."""
+    pa = tmp[3]
+    pb = tmp[4]
+    support(sa, vertices, dx, dy, dz, pa)
+    support(sb, vertices, -dx, -dy, -dz, pb)
+    for r in range(3):
+        points[0, m, r] = pa[r] - pb[r]
+        points[1, m, r] = pa[r]
+        points[2, m, r] = pb[r]
+
+
+@kernel
+def _penetration(sa, sb, vertices, buf, count, witness):
+    """The penetration depth of cores that GJK found touching or intersecting (how far apart
+    they must move to touch) by the expanding polytope algorithm (EPA; van den Bergen 2001, as
+    coal does it), and the deepest points of ``sa``'s and ``sb``'s cores into ``witness (2, 3)``
+    (the depth apart; the cores separate fastest moving ``sa`` from its point towards ``sb``'s).
+    It starts from GJK's simplex ``buf[0][:count]``, which holds the origin: a tetrahedron
+    (``count`` 4), or else a triangle (support points added off the line or the point) and the
+    support point on one side of it, if the difference reaches beyond it on both. 0 when the
+    origin is on the difference's boundary (touching), -1 when the simplex is flat (the
+    witnesses are then left alone)."""
+    W, A, B, tmp = buf[0], buf[1], buf[2], buf[4]
+    points, faces, planes, edges = buf[7], buf[8], buf[9], buf[10]
+    P, PA, PB = points[0], points[1], points[2]
+    size = 0.0
+    for m in range(count):
+        for r in range(3):
+            P[m, r] = W[m, r]
+            PA[m, r] = A[m, r]
+            PB[m, r] = B[m, r]
+    for m in range(count):
+        size = max(size, np.sqrt(P[m, 0] * P[m, 0] + P[m, 1] * P[m, 1] + P[m, 2] * P[m, 2]))
+    n_points = count
+    for axis in range(6):  # a point: a second one, along the axes
+        if n_points != 1:
+            break
+        sign = 1.0 if axis < 3 else -1.0
+        along_x = sign if axis % 3 == 0 else 0.0
+        along_y = sign if axis % 3 == 1 else 0.0
+        along_z = sign if axis % 3 == 2 else 0.0
+        _support_point(sa, sb, vertices, along_x, along_y, along_z, points, np.int64(1), tmp)
+        gap = np.sqrt((P[1, 0] - P[0, 0]) ** 2 + (P[1, 1] - P[0, 1]) ** 2 + (P[1, 2] - P[0, 2]) ** 2)
+        size = max(size, gap)
+        if gap > 1e-9 * size:
+            n_points = 2
+    if n_points == 2:  # a segment: a third point off its line, along two perpendiculars
+        ux = P[1, 0] - P[0, 0]
+        uy = P[1, 1] - P[0, 1]
+        uz = P[1, 2] - P[0, 2]
+        ex = 1.0 if abs(ux) <= abs(uy) and abs(ux) <= abs(uz) else 0.0
+        ey = 1.0 if ex == 0.0 and abs(uy) <= abs(uz) else 0.0
+        ez = 1.0 - ex - ey
+        d1x = uy * ez - uz * ey
+        d1y = uz * ex - ux * ez
+        d1z = ux * ey - uy * ex
+        d2x = uy * d1z - uz * d1y
+        d2y = uz * d1x - ux * d1z
+        d2z = ux * d1y - uy * d1x
+        uu = ux * ux + uy * uy + uz * uz
+        for trial in range(4):
+            sign = 1.0 if trial % 2 == 0 else -1.0
+            if trial < 2:
+                _support_point(sa, sb, vertices, sign * d1x, sign * d1y, sign * d1z, points, np.int64(2), tmp)
+            else:
+                _support_point(sa, sb, vertices, sign * d2x, sign * d2y, sign * d2z, points, np.int64(2), tmp)
+            vx = P[2, 0] - P[0, 0]
+            vy = P[2, 1] - P[0, 1]
+            vz = P[2, 2] - P[0, 2]
+            along = (vx * ux + vy * uy + vz * uz) / uu
+            off = np.sqrt((vx - along * ux) ** 2 + (vy - along * uy) ** 2 + (vz - along * uz) ** 2)
+            size = max(size, np.sqrt(P[2, 0] ** 2 + P[2, 1] ** 2 + P[2, 2] ** 2))
+            if off > 1e-9 * size:
+                n_points = 3
+                break
+    if n_points < 3:
+        return -1.0
+    if n_points == 3:  # a triangle through the origin: a tetrahedron on it, if the difference has volume there
+        if not _face(P, faces, planes, np.int64(0), np.int64(0), np.int64(1), np.int64(2)):
+            return -1.0
+        nx = planes[0, 0]
+        ny = planes[0, 1]
+        nz = planes[0, 2]
+        _support_point(sa, sb, vertices, -nx, -ny, -nz, points, np.int64(3), tmp)
+        below = nx * (P[0, 0] - P[3, 0]) + ny * (P[0, 1] - P[3, 1]) + nz * (P[0, 2] - P[3, 2])
+        _support_point(sa, sb, vertices, nx, ny, nz, points, np.int64(3), tmp)
+        above = nx * (P[3, 0] - P[0, 0]) + ny * (P[3, 1] - P[0, 1]) + nz * (P[3, 2] - P[0, 2])
+        size = max(size, np.sqrt(P[3, 0] ** 2 + P[3, 1] ** 2 + P[3, 2] ** 2))
+        if not (above > 1e-9 * size and below > 1e-9 * size):
+            return 0.0  # the difference is flat on one side: the origin is on its boundary
+        n_points = 4  # convex, the origin on its face 0 1 2: EPA grows it from there
+    # the first polytope's faces, each turned away from the centroid
+    cx = 0.0
+    cy = 0.0
+    cz = 0.0
+    for m in range(n_points):
+        cx += P[m, 0] / n_points
+        cy += P[m, 1] / n_points
+        cz += P[m, 2] / n_points
+    n_faces = 4
+    for f in range(n_faces):  # the face opposite point f
+        i = 1 if f == 0 else 0
+        j = 1 if f >= 2 else 2
+        k = 2 if f == 3 else 3
+        if not _face(P, faces, planes, f, i, j, k):
+            return -1.0
+        if planes[f, 0] * cx + planes[f, 1] * cy + planes[f, 2] * cz > planes[f, 3]:
+            _face(P, faces, planes, f, i, k, j)
+    n_live = 4  # faces on the polytope (``n_faces`` slots are in use, some of them free again)
+    # the nearest face (its points, normal and distance), kept as the polytope changes
+    i = 0
+    j = 0
+    k = 0
+    nx = 0.0
+    ny = 0.0
+    nz = 0.0
+    depth = 0.0
+    for _ in range(EPA_MAX_POINTS):
+        best = -1
+        for f in range(n_faces):
+            if faces[f, 3] == 1 and (best < 0 or planes[f, 3] < planes[best, 3]):
+                best = f
+        if planes[best, 3] < depth - EPA_TOLERANCE * size:
+            break  # the nearest face came nearer: rounding broke the polytope; the last one stands
+        i = faces[best, 0]
+        j = faces[best, 1]
+        k = faces[best, 2]
+        nx = planes[best, 0]
+        ny = planes[best, 1]
+        nz = planes[best, 2]
+        depth = max(planes[best, 3], 0.0)  # a lower bound: the polytope lies inside the difference
+        if n_points == EPA_MAX_POINTS:
+            break
+        _support_point(sa, sb, vertices, nx, ny, nz, points, n_points, tmp)
+        wx = P[n_points, 0]
+        wy = P[n_points, 1]
+        wz = P[n_points, 2]
+        if nx * wx + ny * wy + nz * wz - depth <= EPA_TOLERANCE * size:
+            break  # the nearest face is on the boundary of the cores' difference
+        new = n_points
+        # The faces the new point sees go: the nearest face, then each visible neighbour of a face
+        # gone (a flood over shared edges, so the region is one piece even where rounding makes
+        # nearly coplanar faces on a cylinder disagree); the edges to faces that stay are the horizon.
+        # faces[f, 3]: 1 on the polytope, 2 going (its edges not yet looked at), 0 gone.
+        n_edges = 0
+        faces[best, 3] = 2
+        removed = 1
+        pending = True
+        while pending:
+            pending = False
+            for f in range(n_faces):
+                if faces[f, 3] != 2:
+                    continue
+                faces[f, 3] = 0
+                pending = True
+                for e in range(3):
+                    a = faces[f, e]
+                    b = faces[f, (e + 1) % 3]
+                    g = -1  # the face on the other side of edge a b (it runs b a there)
+                    for h in range(n_faces):
+                        if faces[h, 3] == 1 and (
+                            (faces[h, 0] == b and faces[h, 1] == a)
+                            or (faces[h, 1] == b and faces[h, 2] == a)
+                            or (faces[h, 2] == b and faces[h, 0] == a)
+                        ):
+                            g = h
+                            break
+                    if g < 0:
+                        continue  # gone already: the edge is inside the region
+                    i0 = faces[g, 0]
+                    if (
+                        planes[g, 0] * (wx - P[i0, 0]) + planes[g, 1] * (wy - P[i0, 1]) + planes[g, 2] * (wz - P[i0, 2])
+                        > EPA_TOLERANCE * size
+                    ):
+                        faces[g, 3] = 2
+                        removed += 1
+                    else:
+                        edges[n_edges, 0] = a
+                        edges[n_edges, 1] = b
+                        n_edges += 1
+        n_live -= removed
+        if n_edges == 0 or n_live + n_edges > EPA_MAX_FACES:
+            break  # rounding: the point sees no face; or no room: the nearest face so far stands
+        n_points += 1
+        grown = True
+        for m in range(n_edges):
+            slot = n_faces
+            for f in range(n_faces):
+                if faces[f, 3] == 0:
+                    slot = f
+                    break
+            if slot == n_faces:
+                n_faces += 1
+            n_live += 1
+            grown = grown and _face(P, faces, planes, slot, edges[m, 0], edges[m, 1], np.int64(new))
+        if not grown:
+            break  # a sliver face: the polytope no longer holds; the last nearest face stands
+    # the origin's projection on the nearest face, in barycentric weights of its points
+    d00 = 0.0
+    d01 = 0.0
+    d11 = 0.0
+    d20 = 0.0
+    d21 = 0.0
+    for r in range(3):
+        e0 = P[j, r] - P[i, r]
+        e1 = P[k, r] - P[i, r]
+        e2 = (nx if r == 0 else ny if r == 1 else nz) * depth - P[i, r]
+        d00 += e0 * e0
+        d01 += e0 * e1
+        d11 += e1 * e1
+        d20 += e2 * e0
+        d21 += e2 * e1
+    denominator = d00 * d11 - d01 * d01
+    lj = (d11 * d20 - d01 * d21) / denominator
+    lk = (d00 * d21 - d01 * d20) / denominator
+    li = 1.0 - lj - lk
+    for r in range(3):
+        witness[0, r] = li * PA[i, r] + lj * PA[j, r] + lk * PA[k, r]
+        witness[1, r] = li * PB[i, r] + lj * PB[j, r] + lk * PB[k, r]
+    return depth
 
 
 @kernel
@@ -493,9 +787,9 @@ def segment_distance(sa, sb, tmp, witness):
 @kernel
 def shape_distance(sa, sb, vertices, buf, witness):
     """Signed distance between posed shapes ``sa`` and ``sb``: their cores' distance less both
-    radii (negative when the swept spheres overlap; ``-(r_a + r_b)`` when the cores intersect).
-    ``witness (2, 3)`` receives the closest points of the cores. Points and segments (spheres
-    and capsules) in closed form, the rest by GJK."""
+    radii (negative when the swept spheres overlap; less their penetration depth too when the
+    cores intersect). ``witness (2, 3)`` receives the closest (deepest) points of the cores.
+    Points and segments (spheres and capsules) in closed form, the rest by GJK and EPA."""
     if int(sa[KIND]) <= SEGMENT and int(sb[KIND]) <= SEGMENT:
         core = segment_distance(sa, sb, buf[4], witness)
     else:
@@ -592,11 +886,12 @@ def add_point_row(body, x, nx, ny, nz, sign, ch_slide, kin, bm, row):
 
 
 @kernel
-def distance_rate_row(sa, sb, witness, ch_slide, kin, bm, row):
-    """``row (n,)``: the gradient of the distance between posed shapes ``sa`` and ``sb`` with
-    respect to the joint rates, ``d_dot = row . qd``, from their cores' closest points
-    ``witness (2, 3)`` (the normal runs from ``sb``'s point to ``sa``'s). False (and a zero row)
-    when the points coincide (the cores intersect: no normal)."""
+def distance_rate_row(sa, sb, witness, d, ch_slide, kin, bm, row):
+    """``row (n,)``: the gradient of the signed distance ``d`` between posed shapes ``sa`` and
+    ``sb`` with respect to the joint rates, ``d_dot = row . qd``, from their cores' closest
+    points ``witness (2, 3)``: the normal runs from ``sb``'s point to ``sa``'s, or, where the
+    cores intersect (``d`` below minus both radii), from ``sa``'s deepest point to ``sb``'s (the
+    way out). False (and a zero row) when the points coincide (no normal)."""
     for j in range(row.shape[0]):
         row[j] = 0.0
     dx = witness[0, 0] - witness[1, 0]
@@ -605,6 +900,8 @@ def distance_rate_row(sa, sb, witness, ch_slide, kin, bm, row):
     norm = np.sqrt(dx * dx + dy * dy + dz * dz)
     if not norm > 0.0:
         return False
+    if d + sa[RADIUS] + sb[RADIUS] < 0.0:
+        norm = -norm
     nx = dx / norm
     ny = dy / norm
     nz = dz / norm
@@ -806,7 +1103,7 @@ def avoidance_rows(posed, pairs, buf, ch_slide, kin, bm, influence, clearance, g
     for p in range(pairs.shape[0]):
         if exact[p] == 0.0 or not dist[p] < influence:
             continue
-        if not distance_rate_row(posed[pairs[p, 0]], posed[pairs[p, 1]], witness[p], ch_slide, kin, bm, rows[count]):
+        if not distance_rate_row(posed[pairs[p, 0]], posed[pairs[p, 1]], witness[p], dist[p], ch_slide, kin, bm, rows[count]):
             continue
         for j in range(rows.shape[1]):
             rows[count, j] = -rows[count, j]
@@ -833,7 +1130,7 @@ def clearance_push(posed, pairs, buf, ch_slide, kin, bm, influence, gain, z):
     for p in range(pairs.shape[0]):
         if exact[p] == 0.0 or not dist[p] < influence:
             continue
-        if not distance_rate_row(posed[pairs[p, 0]], posed[pairs[p, 1]], witness[p], ch_slide, kin, bm, grad):
+        if not distance_rate_row(posed[pairs[p, 0]], posed[pairs[p, 1]], witness[p], dist[p], ch_slide, kin, bm, grad):
             continue
         norm2 = 0.0
         for j in range(n):
