@@ -78,17 +78,20 @@ def _planner(robot: RobotModel) -> None:
 
 
 def loop_callees(robot: RobotModel) -> list[tuple[Any, tuple[Any, ...]]]:
-    """The step loop's largest callees, in the order its compilation gets to them, each with the
-    argument types (numba's) the loop gives it: the clearance check's distance (GJK), the SVD, the
-    bounded inverse's QP and the executed trajectory's dynamics, about 20 s of the planner part's
-    compilation (:func:`_compile_loop_callees`). The buffers that give the types are made by the
-    kernels' Python functions: compiling them first would delay the callees by a second and a half,
-    and the planner part reaches the last of them about when the tools part has compiled it."""
+    """The step loop's largest callees, each with the argument types (numba's) the loop gives it:
+    the clearance check's distance (GJK and EPA), the bounded inverse's QP, the executed
+    trajectory's dynamics and the SVD, about 20 s of the planner part's compilation
+    (:func:`_compile_loop_callees`). The buffers that give the types are made by the kernels'
+    Python functions: compiling them first would delay the callees by a second and a half. The
+    planner part's compilation gets to them in the order distance, SVD, QP, dynamics (10, 13,
+    16 and 17 s after the start, 2026-11-29), later than the tools part can have compiled all
+    four (18 s): the SVD, the quickest (2 s), comes last, so that the planner part compiles that
+    one itself and loads the other three (with it second, the dynamics came 1 s late and the
+    planner part compiled them, 4 s: a cold compilation of 34 s instead of 31)."""
     n = robot.n_joints
     array1, array2 = typeof(np.zeros(1)), typeof(np.zeros((1, 1)))
     return [
         (geometry_kernels.shape_distance, (array1, array1, array2, typeof(geometry_kernels.gjk_buffers.py_func()), array2)),
-        (svd_kernels.jacobi_svd, (array2, typeof(svd_kernels.svd_buffers.py_func(n, 6)), types.boolean)),
         (
             qp_kernels.dls_qp,
             # the loop passes max_iter as the constant 0, which numba types as the literal
@@ -100,6 +103,7 @@ def loop_callees(robot: RobotModel) -> list[tuple[Any, tuple[Any, ...]]]:
             (typeof(robot.chain), types.float64, types.int64, array1)
             + (typeof(dynamics_kernels.trajectory_buffers.py_func(3, n, 1)), types.boolean),
         ),
+        (svd_kernels.jacobi_svd, (array2, typeof(svd_kernels.svd_buffers.py_func(n, 6)), types.boolean)),
     ]
 
 
