@@ -19,7 +19,7 @@ from starlette.convertors import Convertor, register_url_convertor
 from typing_extensions import TypeAliasType
 
 from service import figures
-from service.errors import MAX_OFFSET, ApiError, NotAcceptableError
+from service.errors import MAX_OFFSET, ApiError, NotAcceptableError, UnsupportedMediaTypeError
 from service.infra.admission import DEFAULT_COST, Admission
 from service.infra.db import Database, elsewhere_if_locked
 from service.infra.loop import HandOff
@@ -231,6 +231,31 @@ async def json_only(request: Request) -> None:
 
 
 JsonOnly = Depends(json_only)
+
+
+async def json_body(request: Request) -> None:
+    """A dependency of the resources whose body is JSON: a body sent as another media type
+    (``text/plain``, or the form encoding that ``curl -d`` sends without ``-H``), or without a
+    ``Content-Type`` (which FastAPI does not read as JSON), is a 415 that says so, not a 422
+    calling the JSON "not a valid dictionary". A request without a body goes on to the 422
+    that names the missing body."""
+    content_type = request.headers.get("content-type")
+    if content_type is None:
+        if request.headers.get("content-length", "0") == "0" and "transfer-encoding" not in request.headers:
+            return
+        raise UnsupportedMediaTypeError(
+            "a body without Content-Type: this resource reads application/json (with curl: -H 'content-type: application/json')"
+        )
+    main, _, sub = content_type.split(";", 1)[0].strip().lower().partition("/")
+    if main == "application" and (sub == "json" or sub.endswith("+json")):
+        return
+    raise UnsupportedMediaTypeError(
+        f"Content-Type {content_type!r} is not JSON: this resource reads application/json "
+        "(with curl: -H 'content-type: application/json')"
+    )
+
+
+JsonBody = Depends(json_body)
 
 FigureFormat = TypeAliasType("FigureFormat", Literal["svg", "png", "pdf"])
 assert set(FigureFormat.__value__.__args__) == set(figures.FORMATS)

@@ -29,6 +29,7 @@ TITLES = {
     406: "Not Acceptable",
     409: "Conflict",
     413: "Content Too Large",
+    415: "Unsupported Media Type",
     422: "Unprocessable Content",
     429: "Too Many Requests",
     500: "Internal Server Error",
@@ -41,6 +42,7 @@ TYPES = {
     406: "not-acceptable",
     409: "conflict",
     413: "content-too-large",
+    415: "unsupported-media-type",
     422: "validation-error",
     429: "too-many-requests",
     500: "internal-error",
@@ -88,6 +90,13 @@ class NotAcceptableError(ApiError):
 
     def __init__(self, detail: str, available: list[str]) -> None:
         super().__init__(406, detail, available=available)
+
+
+class UnsupportedMediaTypeError(ApiError):
+    """The body's ``Content-Type`` is not one the resource reads."""
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(415, detail)
 
 
 def body_invalid(exc: ValidationError) -> RequestValidationError:
@@ -247,6 +256,7 @@ def responses(*codes: int) -> dict[int | str, dict[str, Any]]:
         404: "unknown id",
         406: "`Accept` names none of the media types offered (`available` lists them)",
         409: "conflict: the resource's state does not allow it",
+        415: "the body's `Content-Type` is not JSON (this resource reads `application/json`)",
         422: "invalid body or parameters",
     }
     return {code: {"description": desc.get(code, TITLES.get(code, "error")), "model": Problem} for code in codes}

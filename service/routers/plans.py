@@ -23,6 +23,7 @@ from fastapi import APIRouter, Body, Query, Request, Response, status
 from service.deps import (
     DbDep,
     FieldsQuery,
+    JsonBody,
     JsonOnly,
     Limit,
     Offset,
@@ -76,8 +77,8 @@ CREATE_PLAN_BODY = one_of_body(
     "admitted before it, in joint-steps, at the measured speed) exceeds `SPACEARM_PLAN_QUEUE_TIMEOUT_S` is a 503 "
     "with `Retry-After`. `fields` chooses the sections of the answer. The answer is JSON: an `Accept` without "
     "it is a 406 (the trajectory in other formats: `GET /v1/plans/{plan_id}/trajectory`).",
-    responses=responses(404, 406, 422),
-    dependencies=[JsonOnly],
+    responses=responses(404, 406, 415, 422),
+    dependencies=[JsonOnly, JsonBody],
     openapi_extra=CREATE_PLAN_BODY,
 )
 async def create_plan(

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Body, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 
-from service.deps import DbDep, Limit, Offset, RobotId, SessionDep, SessionRoute, SettingsDep, one_of_body, run_admitted
+from service.deps import DbDep, JsonBody, Limit, Offset, RobotId, SessionDep, SessionRoute, SettingsDep, one_of_body, run_admitted
 from service.errors import body_invalid, responses
 from service.schemas.robots import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams, RobotUrdfIn
 from service.usecases import robots
@@ -64,7 +64,8 @@ def _validated(body: dict[str, Any]) -> RobotParams | RobotUrdfIn:
     "`body.links[2].inertia`) and the joint axes normalised; 201 with the robot and its `Location`. The bounds and "
     "messages are the same for a URDF's derived parameters (a 422 at `body.urdf` naming the link). A URDF is read "
     "behind the plan admission (503 with `Retry-After` when it is full).",
-    responses=responses(422),
+    responses=responses(415, 422),
+    dependencies=[JsonBody],
     openapi_extra=CREATE_ROBOT_BODY,
 )
 async def create_robot(request: Request, settings: SettingsDep, response: Response, body: dict[str, Any] = Body(...)) -> RobotOut:
@@ -137,7 +138,8 @@ def delete_robot(robot_id: RobotId, db: DbDep) -> Response:
     "and base pose given, with its singular values, determinant, manipulability and condition number, and the "
     "end-effector pose. Nothing is stored. A GJM that is not finite at that state (masses too small for double "
     "precision) is a 422 that says so.",
-    responses=responses(404, 409, 422),
+    responses=responses(404, 409, 415, 422),
+    dependencies=[JsonBody],
 )
 def compute_jacobian(robot_id: RobotId, body: JacobianRequest, session: SessionDep) -> JacobianOut:
     return robots.jacobian(session, robot_id, body)

@@ -281,3 +281,28 @@ def test_malformed_bodies_are_problems_naming_the_body(client: httpx.Client) -> 
     r = client.post("/v1/plans", content=b"\x80\x81garbage", headers={"content-type": "application/json"})
     assert _fields(r)[0].startswith("body")
     assert _fields(client.get("/v1/plans", params={"offset": 10**20})) == ["query.offset"]
+
+
+@pytest.mark.parametrize(
+    "path",
+    ["/v1/plans", "/v1/robots", "/v1/robots/table1/jacobian", "/v1/tuning-jobs", "/v1/landscapes", "/v1/plans/shortest-duration"],
+)
+def test_a_json_body_sent_as_another_media_type_is_a_415_that_says_so(client: httpx.Client, path: str) -> None:
+    """Valid JSON as ``text/plain``, or form-encoded (``curl -d`` without ``-H``), is a 415 whose
+    detail names the type and JSON (it was a 422 "body: Input should be a valid dictionary")."""
+    text = json.dumps({"robot_id": "table1", "task": PAPER_TASK, "replay": False}).encode()
+    for content_type in ("text/plain", "application/x-www-form-urlencoded", "application/xml"):
+        r = client.post(path, content=text, headers={"content-type": content_type})
+        assert r.status_code == 415, (path, content_type, r.text)
+        assert r.headers["content-type"].startswith(PROBLEM)
+        assert f"Content-Type {content_type!r} is not JSON" in r.json()["detail"] and "application/json" in r.json()["detail"]
+
+
+def test_json_media_types_are_read_and_a_body_without_a_content_type_is_a_415(client: httpx.Client) -> None:
+    body = json.dumps({"robot_id": "table1", "task": PAPER_TASK, "replay": False}).encode()
+    for content_type in ("application/json; charset=utf-8", "application/merge-patch+json"):
+        r = client.post("/v1/plans", params={"fields": ""}, content=body, headers={"content-type": content_type})
+        assert r.status_code == 201, (content_type, r.text)
+    r = client.post("/v1/plans", content=body)
+    assert r.status_code == 415 and "a body without Content-Type" in r.json()["detail"]
+    assert _fields(client.post("/v1/plans")) == ["body"]  # no body at all: the 422 names it
