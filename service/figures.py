@@ -968,23 +968,38 @@ def _objective_unit(objective: dict[str, Any] | None) -> str:
 
 
 def fig_compare_torques(plans: Sequence[PlanData]) -> Figure:
-    """Several plans' joint torques (forces) overlaid, one panel per joint, with its limit."""
+    """Several plans' joint torques (forces) overlaid, one panel per joint, with its limit. A
+    panel whose joint is revolute in some plans and prismatic in others draws the forces (N) on
+    a second y axis, dashed, beside the torques (N m)."""
     count = max((data.q.shape[1] for data in plans), default=1)
     fig = mpl().figure.Figure(figsize=(FIGSIZE[0], max(FIGSIZE[1], 1.25 * count + 1.0)), dpi=DPI, layout="constrained")
     axes = fig.subplots(count, 1, sharex=True, squeeze=False)[:, 0].tolist()
     fig.suptitle("Joint torques compared (executed trajectories)", fontsize=10)
     axes[-1].set_xlabel("time t [s]")
-    for k, data in enumerate(plans):
-        label = f"{data.label} [{data.id[:8]}]"
-        for j in range(data.q.shape[1]):
-            _line(axes[j], data.t, data.dynamics.tau[:, j], label=label if j == 0 else None, color=f"C{k % 10}")
     for j, ax in enumerate(axes):
-        limits = {float(d.dynamics.limit[j]) for d in plans if j < d.q.shape[1] and np.isfinite(d.dynamics.limit[j])}
-        for value in sorted(limits):
-            ax.axhline(value, color="C3", linestyle="--", linewidth=1)
-            ax.axhline(-value, color="C3", linestyle="--", linewidth=1)
-        unit = "N" if any(j < d.q.shape[1] and d.prismatic[j] for d in plans) else "N m"
-        ax.set_ylabel(f"joint {j + 1} [{unit}]")
+        at = [(k, d) for k, d in enumerate(plans) if j < d.q.shape[1]]
+        kinds = sorted({bool(d.prismatic[j]) for _, d in at})
+        # one y axis per unit: the first kind's on the panel, the other's (forces) on a second one
+        axis_of = {kind: ax if kind == kinds[0] else ax.twinx() for kind in kinds}
+        for kind, on in axis_of.items():
+            unit = "N" if kind else "N m"
+            mixed = on is not ax
+            for k, data in at:
+                if bool(data.prismatic[j]) == kind:
+                    label = f"{data.label} [{data.id[:8]}]" if j == 0 else None
+                    style = {"linestyle": "--"} if mixed else {}
+                    _line(on, data.t, data.dynamics.tau[:, j], label=label, color=f"C{k % 10}", **style)
+            limits = {
+                float(d.dynamics.limit[j]) for _, d in at if bool(d.prismatic[j]) == kind and np.isfinite(d.dynamics.limit[j])
+            }
+            for value in sorted(limits):
+                on.axhline(value, color="C3", linestyle="--", linewidth=1)
+                on.axhline(-value, color="C3", linestyle="--", linewidth=1)
+            if mixed:
+                on.grid(False)
+                on.set_ylabel(f"prismatic, dashed [{unit}]")
+            else:
+                ax.set_ylabel(f"joint {j + 1} [{unit}]")
     if limits_drawn := any(np.isfinite(d.dynamics.limit).any() for d in plans):
         axes[0].plot([], [], color="C3", linestyle="--", linewidth=1, label="the joint's limit")
     _legend(axes[0], 2 if limits_drawn else 1)

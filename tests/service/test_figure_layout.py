@@ -336,3 +336,27 @@ def test_prismatic_joints_keep_their_legend_clear_of_the_second_axis() -> None:
         assert "joint 3 [m" in " ".join(t.get_text() for t in main.get_legend().get_texts())
     ax_d, _ = time_axes(figures.PLAN_FIGURES["gjm-determinant"](data))
     assert ax_d.get_ylabel() == "det J_g [m²/rad²]"  # 3 position rows; 2 revolute joints and a boom
+
+
+def test_compared_torques_of_a_revolute_and_a_prismatic_joint_keep_their_units_apart() -> None:
+    """Comparing the paper plan with an arm3 plan: joint 3 is revolute (N m) in one and a
+    prismatic boom (N) in the other, so its panel draws the boom's force on a second y axis,
+    dashed, with the boom's limit there; the torque axis keeps N m (it said "[N]" for both)."""
+    paper = _plan({"task": presets.PRESETS["paper-line"].task.model_dump(), "method": {"name": "adaptive"}}, "a" * 32)
+    preset = presets.PRESETS["arm3-position"]
+    boom = _plan({"task": preset.task.model_dump(), "method": {"name": "adaptive"}}, "d" * 32, urdf_robot("arm3"))
+    fig = figures.fig_compare_torques([paper, boom])
+    check_text_inside_and_apart(fig, drawn(fig))
+    panels = fig.axes[:6]
+    assert [ax.get_ylabel() for ax in panels] == [f"joint {j + 1} [N m]" for j in range(6)]
+    (twin,) = fig.axes[6:]  # joint 3's, the only panel with both kinds
+    assert twin.get_ylabel() == "prismatic, dashed [N]" and twin.get_shared_x_axes().joined(twin, panels[2])
+    (force,) = [line for line in twin.get_lines() if len(line.get_ydata()) == len(boom.t)]
+    assert force.get_linestyle() == "--"
+    np.testing.assert_array_equal(force.get_ydata(), boom.dynamics.tau[:, 2])
+    limits = sorted(float(line.get_ydata()[0]) for line in twin.get_lines() if line is not force)
+    assert limits == (
+        [-float(boom.dynamics.limit[2]), float(boom.dynamics.limit[2])] if np.isfinite(boom.dynamics.limit[2]) else []
+    )
+    (torque,) = [line for line in panels[2].get_lines() if len(line.get_ydata()) == len(paper.t)]
+    np.testing.assert_array_equal(torque.get_ydata(), paper.dynamics.tau[:, 2])
