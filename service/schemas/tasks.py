@@ -146,7 +146,7 @@ class TaskPreset(Output):
     robot_id: str = Field(description="the stored robot the task is meant for")
     task: TaskIn = Field(description="the task, ready to post")
     method: MethodIn | None = Field(
-        default=None, description="the method and parameters the preset is meant to be planned with (null: any)"
+        default=None, description="the method and parameters the preset is meant to be planned with (every preset has one)"
     )
 
 

@@ -73,15 +73,19 @@ PRESETS: dict[str, TaskPreset] = {
     ),
     "paper-line-quintic": TaskPreset(
         name="paper-line-quintic",
-        description="The paper's detection line with a quintic time profile",
+        description="The paper's detection line with a quintic time profile, and paper-line's method: the quintic "
+        "profile's higher peak speed takes joint 2 to 8.9 deg/s, past the 6 deg/s limit (no adaptive damping between "
+        "0.04 and 0.2 keeps it), so the plan fails where the trapezoidal one succeeds",
         robot_id="table1",
         task=TaskIn(**{**PAPER_TASK_EXAMPLE, "profile": "quintic"}),
+        method=MethodIn.model_validate({"name": "adaptive", "params": PAPER_TASK_PARAMS["adaptive"]}),
     ),
     "paper-line-fine": TaskPreset(
         name="paper-line-fine",
-        description="The paper's detection line with dt 0.05 s",
+        description="The paper's detection line with dt 0.05 s, and paper-line's method",
         robot_id="table1",
         task=TaskIn(**{**PAPER_TASK_EXAMPLE, "dt_s": 0.05}),
+        method=MethodIn.model_validate({"name": "adaptive", "params": PAPER_TASK_PARAMS["adaptive"]}),
     ),
     "raster-patch": TaskPreset(
         name="raster-patch",
@@ -115,7 +119,8 @@ PRESETS: dict[str, TaskPreset] = {
     "arm7-line": TaskPreset(
         name="arm7-line",
         description="The 7-joint arm on its spacecraft (URDF example): a 0.37 m line with a 20 deg turn in 20 s, "
-        "6 deg/s limit; plan it with and without the secondary objective min_base_rotation",
+        "6 deg/s limit, adaptive damping 0.05/0.05; plan it with and without the secondary objective "
+        "min_base_rotation",
         robot_id="arm7",
         task=TaskIn(
             q0_deg=[0.0, 40.0, 0.0, 80.0, 0.0, 50.0, 0.0],
@@ -126,11 +131,12 @@ PRESETS: dict[str, TaskPreset] = {
             dt_s=0.25,
             joint_speed_limit_deg_s=6.0,
         ),
+        method=MethodIn.model_validate({"name": "adaptive", "params": {"lambda_max": 0.05, "epsilon": 0.05}}),
     ),
     "arm3-position": TaskPreset(
         name="arm3-position",
         description="The 3-joint arm (yaw, pitch, telescopic boom; URDF example) moves its tool 0.33 m in 20 s, "
-        "tracking the position only; 6 deg/s and 0.05 m/s limits",
+        "tracking the position only; 6 deg/s and 0.05 m/s limits; DLS",
         robot_id="arm3",
         task=TaskIn(
             q0_deg=[0.0, 20.0, None],
@@ -143,6 +149,7 @@ PRESETS: dict[str, TaskPreset] = {
             joint_speed_limit_deg_s=6.0,
             joint_speed_limit_m_s=0.05,
         ),
+        method=MethodIn.model_validate({"name": "dls"}),
     ),
 }
 

@@ -234,3 +234,14 @@ def test_invalid_paths_are_422s_naming_the_field(
     assert r.status_code == 422, r.text
     assert r.headers["content-type"].startswith("application/problem+json")
     assert r.json()["errors"][0]["field"] == field, r.json()
+
+
+def test_every_preset_posts_back_as_it_is(client: httpx.Client) -> None:
+    """Each preset's `robot_id`, `task` and `method`, posted as they come, plan (four had no
+    method, and their null was a 422)."""
+    items = client.get("/v1/task-presets").json()["items"]
+    assert all(p["method"] is not None for p in items)
+    for preset in items:
+        r = client.post("/v1/plans", params={"fields": ""}, json=preset_body(client, preset["name"], replay=False))
+        assert r.status_code == 201, (preset["name"], r.text)
+        assert r.json()["method"]["name"] == preset["method"]["name"]
