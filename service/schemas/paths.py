@@ -100,6 +100,9 @@ class PathSchema(Input):
     """A path type's request schema: its ``type`` tag (the engine's path kind) and its parameters."""
 
     kind: ClassVar[str]
+    #: s: the duration a task without ``duration_s`` has on this path (None: the path's own timing,
+    #: which a stored request leaves null so that a rerun with other speeds retimes it)
+    default_duration_s: ClassVar[float | None] = None
     #: Whether the path keeps its own timing when the task gives no ``duration_s`` (it is then
     #: refused if that exceeds the longest duration allowed).
     timed_by_itself: ClassVar[bool] = False
@@ -141,6 +144,7 @@ class LinePathIn(PathSchema):
     `duration_s` (default 15), `profile` and `ramp_time_s`."""
 
     kind: ClassVar[str] = "line"
+    default_duration_s: ClassVar[float | None] = DEFAULT_DURATION_S
     type: Literal["line"] = Field(default="line", description="the path type")
 
     def spec(self, start_attitude: FloatArray, task: PathContext) -> dict[str, Any]:
@@ -152,7 +156,7 @@ class LinePathIn(PathSchema):
         return {
             "target_position": task.target_position,
             "target_attitude": start_attitude if task.target_attitude is None else task.target_attitude,
-            "duration": DEFAULT_DURATION_S if task.duration is None else task.duration,
+            "duration": self.default_duration_s if task.duration is None else task.duration,
             "ramp_time": task.ramp_time,
             "profile": task.profile,
         }
@@ -194,6 +198,7 @@ class ArcPathIn(PathSchema):
     Timed like a line by the task's `duration_s` (default 15), `profile` and `ramp_time_s`."""
 
     kind: ClassVar[str] = "arc"
+    default_duration_s: ClassVar[float | None] = DEFAULT_DURATION_S
     type: Literal["arc"] = Field(description="the path type")
     centre_m: Point3 | None = Field(default=None, description="a point on the arc's axis, m")
     axis: Point3 | None = Field(default=None, description="direction of the arc's axis (normalised)")
@@ -208,7 +213,7 @@ class ArcPathIn(PathSchema):
     def spec(self, start_attitude: FloatArray, task: PathContext) -> dict[str, Any]:
         law = {
             "attitude": self.attitude,
-            "duration": DEFAULT_DURATION_S if task.duration is None else task.duration,
+            "duration": self.default_duration_s if task.duration is None else task.duration,
             "ramp_time": task.ramp_time,
             "profile": task.profile,
         }

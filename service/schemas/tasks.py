@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Annotated
+from typing import Annotated, Self
 
 import numpy as np
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, model_validator
 
 from engine import CartesianTask, RobotModel
 from engine.bounds import MAX_LENGTH_M
@@ -88,6 +88,14 @@ class TaskIn(Input):
         "a plan that comes closer fails, and P_l of B counts it. Checked when the robot has collision shapes",
     )
     scene: SceneIn | None = Field(default=None, description="obstacles and avoidance settings (null: no obstacles)")
+
+    @model_validator(mode="after")
+    def _default_duration(self) -> Self:
+        """A line's or an arc's duration left out is its default, 15 s, filled in where it is read
+        (so a stored request says what was planned); other paths keep null: their own timing."""
+        if self.duration_s is None and self.path.default_duration_s is not None:
+            self.duration_s = self.path.default_duration_s
+        return self
 
     def to_engine(self, model: RobotModel) -> CartesianTask:
         """The engine's task for ``model``; errors name the engine's fields (:meth:`locate` finds them)."""

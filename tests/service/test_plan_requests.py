@@ -202,3 +202,21 @@ def test_spacearm_plan_plans_a_file_without_a_server(client: httpx.Client, store
     assert unknown.returncode == 2 and "'mine' is not a preset" in unknown.stderr
     rerun = spacearm_plan("-", stdin=json.dumps({"from_plan_id": "0" * 32}))
     assert rerun.returncode == 2 and "from_plan_id needs the server" in rerun.stderr
+
+
+def test_a_line_without_a_duration_stores_the_15_s_it_used_and_a_raster_its_own_timing(
+    client: httpx.Client, stored: dict[str, Any]
+) -> None:
+    """The default duration of a line (and an arc) is stored as used, 15 s; a raster's stays null,
+    its own timing, so that a rerun with another scan speed retimes it."""
+    task = {k: v for k, v in PAPER_TASK.items() if k != "duration_s"}
+    line = post(client, {"robot_id": "table1", "task": task, "replay": False})
+    assert line["request"]["task"]["duration_s"] == 15.0 and line["metrics"] == stored["paper"]["metrics"]
+    assert stored["raster"]["request"]["task"]["duration_s"] is None
+    faster = post(client, {"from_plan_id": stored["raster"]["id"], "task": {"path": {"scan_speed_m_s": 0.04}}, "replay": False})
+
+    def duration(plan: dict[str, Any]) -> float:
+        trajectory = client.get(f"/v1/plans/{plan['id']}", params={"fields": "trajectory"}).json()["trajectory"]
+        return float(trajectory["t_s"][-1])
+
+    assert duration(faster) < 0.7 * duration(stored["raster"])  # the passes twice as fast, not the turns
