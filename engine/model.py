@@ -62,11 +62,15 @@ def _inertia(value: Any, field: str, effort_key: str | None = None) -> FloatArra
         raise ParameterError(field, "inertia tensor must be symmetric")
     inertia = _frozen(0.5 * (given + given.T))  # exactly the input when it is symmetric
     principal = np.linalg.eigvalsh(inertia)
-    if principal[0] <= 1e-12 * scale:
+    if principal[0] < -1e-12 * scale:
+        raise ParameterError(
+            field, f"inertia tensor must be positive definite: a principal moment is negative, {principal[0]:.6g} kg m^2"
+        )
+    if principal[0] <= 1e-12 * scale:  # none, or singular: a body the URDF gave no dynamics data
         needs = "the GJM and the joint torques need every body's inertia"
         if effort_key is not None:
             needs = f"this link has a {effort_key} but no dynamics data: the joint torques (and the GJM) need its inertia"
-        raise ParameterError(field, f"inertia tensor must be positive definite ({needs})")
+        raise ParameterError(field, f"inertia tensor must be positive definite, not zero or singular ({needs})")
     # Physical inertia: each principal moment at most the sum of the other two.
     p1, p2, p3 = principal
     if p3 > p1 + p2 + 1e-9 * scale:

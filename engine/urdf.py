@@ -391,7 +391,8 @@ def urdf_to_dict(
     serial arm on a floating base; see the module docstring. ``tool_offset = (position (3,) m,
     rotation (3, 3))`` is the end-effector frame in ``end_effector_link``'s frame;
     ``mesh_hulls(filename)`` gives a ``<mesh>`` collision's convex hull ``(V, 3)`` (the mesh's
-    own units, before ``scale``). Huge numbers may give infinite parameters, which building the
+    own units, before ``scale``), None for a name it does not read, or raises ``LookupError``
+    (its message then says why) for one it reads but cannot find. Huge numbers may give infinite parameters, which building the
     model refuses."""
     robot, collisions = _read(text)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -454,7 +455,10 @@ def _collision_shapes(
             )
         else:
             filename = entry["filename"]
-            hull = mesh_hulls(filename) if mesh_hulls is not None else None
+            try:
+                hull = mesh_hulls(filename) if mesh_hulls is not None else None
+            except LookupError as exc:  # a name the callable knows how to read, but nothing by it
+                raise UrdfError(where, f"<mesh filename={filename!r}>: {exc.args[0]}") from None
             if hull is None:
                 raise UrdfError(
                     where,

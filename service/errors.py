@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from typing import Any
 
@@ -184,8 +185,13 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         if exc.status_code == 400 and "parsing the body" in str(exc.detail):  # e.g. not UTF-8: a body error like any other
-            errors = [field_error(["body"], "the body is not valid JSON (UTF-8)")]
-            return problem(422, "body: the body is not valid JSON (UTF-8)", instance=request.url.path, errors=errors)
+            reason = "the body is not valid JSON (UTF-8)"
+            cause = exc.__cause__
+            if isinstance(cause, ValueError) and not isinstance(cause, UnicodeError) and "digits" in str(cause):
+                # Python's guard against quadratic int parsing, not the client's JSON
+                reason = f"a number in the body has more than {sys.get_int_max_str_digits()} digits"
+            errors = [field_error(["body"], reason)]
+            return problem(422, f"body: {reason}", instance=request.url.path, errors=errors)
         if exc.status_code == 413:
             errors = [field_error(["body"], str(exc.detail))]
             return problem(413, str(exc.detail), instance=request.url.path, headers=exc.headers, errors=errors)

@@ -195,14 +195,15 @@ MESH_URI = "mesh://"
 
 def stored_mesh_hull(filename: str) -> FloatArray | None:
     """The hull of the stored mesh a URDF ``<mesh filename="mesh://<id>">`` names (None for any
-    other file name: the URDF importer refuses it, saying how to name a stored mesh)."""
+    other file name: the URDF importer refuses it, saying how to name a stored mesh; a
+    ``LookupError`` saying so for an id no mesh has)."""
     resolve = MESH_HULLS.get()
     if resolve is None or not filename.startswith(MESH_URI):
         return None
     try:
         return resolve(filename[len(MESH_URI) :])
-    except ParameterError:
-        return None
+    except ParameterError as exc:
+        raise LookupError(f"{exc.reason}; GET /v1/meshes lists the stored ones") from None
 
 
 class JointOut(Output):

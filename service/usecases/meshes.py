@@ -46,7 +46,9 @@ def read(content: bytes, fmt: MeshFormat) -> tuple[Any, np.ndarray]:
     if len(content) > MAX_MESH_BYTES:
         raise _invalid(f"the file has {len(content)} bytes, more than the {MAX_MESH_BYTES} a mesh may have")
     try:
-        mesh = trimesh.load(io.BytesIO(content), file_type=fmt, force="mesh", process=True)
+        # unprocessed first: processing drops the vertices that are not finite, and then the mesh
+        # read as not closed instead of as not finite
+        mesh = trimesh.load(io.BytesIO(content), file_type=fmt, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many kinds for a file it cannot read
         raise _invalid(f"not a readable {fmt.upper()} file ({type(exc).__name__}: {exc})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
@@ -54,6 +56,8 @@ def read(content: bytes, fmt: MeshFormat) -> tuple[Any, np.ndarray]:
     vertices = np.asarray(mesh.vertices, dtype=float)
     if not np.all(np.isfinite(vertices)) or np.abs(vertices).max() > MAX_LENGTH_M:
         raise _invalid(f"every coordinate must be finite and within +-{MAX_LENGTH_M:g} m")
+    mesh.process()  # merges duplicate vertices, as loading with process=True does
+    vertices = np.asarray(mesh.vertices, dtype=float)
     if float(np.ptp(vertices, axis=0).min()) < MIN_EXTENT_M:
         raise _invalid("the mesh is flat: an obstacle needs a volume")
     if not mesh.is_watertight:

@@ -209,3 +209,24 @@ def test_a_robot_exported_as_urdf_and_stored_again_keeps_its_collision_geometry(
     assert again["min_clearance_pair"] == original["min_clearance_pair"]
     assert again["min_clearance_m"] == pytest.approx(original["min_clearance_m"], abs=1e-9)
     assert again["clearance_respected"] is original["clearance_respected"] is True
+
+
+def test_mesh_refusals_say_what_is_wrong(client: httpx.Client) -> None:
+    """A vertex that is not a number is said to be one (processing dropped it and the mesh read as
+    "not closed"); a URDF naming a mesh id that is not stored says so (it said to do what it did)."""
+    obj = "v nan 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n"
+    r = client.post("/v1/meshes", params={"format": "obj"}, content=obj.encode())
+    assert r.status_code == 422 and "every coordinate must be finite" in r.json()["detail"]
+    unknown = "0123456789abcdef0123456789abcdef"
+    urdf = (
+        table1_with_geometry()
+        .to_urdf()
+        .replace(
+            '<link name="link6">',
+            f'<link name="link6"><collision><geometry><mesh filename="mesh://{unknown}"/></geometry></collision>',
+            1,
+        )
+    )
+    r = client.post("/v1/robots", json={"urdf": urdf})
+    assert r.status_code == 422 and f"no stored mesh '{unknown}'" in r.json()["detail"], r.text
+    assert r.json()["element"] == '<link name="link6">'

@@ -102,7 +102,8 @@ def test_masses_positive(client: httpx.Client, robot: dict[str, Any], where: str
     ("inertia", "why"),
     [
         ([[1.0, 0.2, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "symmetric"),
-        ([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]], "positive definite"),
+        ([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]], "a principal moment is negative, -1 kg m^2"),
+        ([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], "not zero or singular"),
         ([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 5.0]], "triangle inequality"),
     ],
 )
@@ -112,6 +113,7 @@ def test_inertia_tensor_rules(client: httpx.Client, robot: dict[str, Any], inert
     r = client.post("/v1/robots", json=params)
     assert _fields(r) == ["body.links[1].inertia"]
     assert why in r.json()["detail"]
+    assert ("no dynamics data" in r.json()["detail"]) == ("singular" in why)  # Table 1's links have torque limits
     params = copy.deepcopy(robot)
     params["base"]["inertia"] = inertia
     assert _fields(client.post("/v1/robots", json=params)) == ["body.base.inertia"]
@@ -306,3 +308,10 @@ def test_json_media_types_are_read_and_a_body_without_a_content_type_is_a_415(cl
     r = client.post("/v1/plans", content=body)
     assert r.status_code == 415 and "a body without Content-Type" in r.json()["detail"]
     assert _fields(client.post("/v1/plans")) == ["body"]  # no body at all: the 422 names it
+
+
+def test_a_number_of_5000_digits_is_named_as_such(client: httpx.Client) -> None:
+    """Python refuses integer text longer than 4,300 digits (quadratic parsing); the body is JSON
+    all the same, so the message says which rule it broke (it said "not valid JSON")."""
+    r = _raw(client, "/v1/plans", '{"robot_id": "table1", "task": {"duration_s": ' + "1" * 5000 + "}}")
+    assert _fields(r) == ["body"] and "has more than 4300 digits" in r.json()["detail"]
