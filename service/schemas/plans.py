@@ -182,7 +182,8 @@ else:
 
 def _api_value(spec: MetricSpec, value: Any) -> Any:
     if spec.conversion == "deg":
-        value = math.degrees(value)
+        # 15 significant digits: the conversion's last-bit noise off (a limit of 6 deg/s read 6.000000000000001)
+        value = float(f"{math.degrees(value):.15g}") if math.isfinite(value) else value
     elif spec.conversion == "joint":
         return int(value) + 1 if value is not None and value >= 0 else None
     if isinstance(value, bool | np.bool_):

@@ -220,3 +220,8 @@ def test_a_line_without_a_duration_stores_the_15_s_it_used_and_a_raster_its_own_
         return float(trajectory["t_s"][-1])
 
     assert duration(faster) < 0.7 * duration(stored["raster"])  # the passes twice as fast, not the turns
+
+
+def test_metrics_in_degrees_come_back_as_given(stored: dict[str, Any]) -> None:
+    """6 deg/s went to radians and back as 6.000000000000001: the degrees are given to 15 digits."""
+    assert stored["paper"]["metrics"]["joint_speed_limit_deg_s"] == 6.0
