@@ -218,9 +218,14 @@ def negotiate(accept: str | None, offered: list[str]) -> str | None:
 
 
 async def json_only(request: Request) -> None:
-    """A dependency of the JSON-only plan resources: a request whose ``Accept`` excludes JSON
-    (``text/csv``, say) is a 406 that points to the trajectory export instead of a JSON answer."""
+    """A dependency of the resources that answer JSON only: a request whose ``Accept`` excludes
+    JSON (``text/csv``, say) is a 406, which for a plan points to the trajectory export."""
     if negotiate(request.headers.get("accept"), ["application/json"]) is None:
+        if not request.url.path.startswith("/v1/plans") or request.url.path.endswith("/shortest-duration"):
+            raise NotAcceptableError(
+                f"{request.headers.get('accept')!r} not available: this resource answers application/json",
+                ["application/json"],
+            )
         plan_id = request.path_params.get("plan_id")
         export = f"/v1/plans/{plan_id}/trajectory" if plan_id else "/v1/plans/{plan_id}/trajectory"
         raise NotAcceptableError(

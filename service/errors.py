@@ -90,7 +90,7 @@ class NotAcceptableError(ApiError):
     """``Accept`` names none of the media types a resource has (``available``)."""
 
     def __init__(self, detail: str, available: list[str]) -> None:
-        super().__init__(406, detail, available=available)
+        super().__init__(406, detail, headers={"Vary": "Accept"}, available=available)  # the answer depends on Accept
 
 
 class UnsupportedMediaTypeError(ApiError):

@@ -13,6 +13,7 @@ from service.deps import (
     Dpi,
     Format,
     JsonBody,
+    JsonOnly,
     LandscapeId,
     SessionDep,
     SessionRoute,
@@ -41,8 +42,8 @@ router = APIRouter(prefix="/v1/landscapes", tags=["landscapes"], route_class=Ses
     f"{MAX_LANDSCAPE_JOINT_STEPS:.2g} joint-steps (cells x tasks x plan-steps x joints; a 64 x 64 grid of the paper's "
     "task is 1.5e6). `tuning_job_id` marks that job's optimum and tuned DLS on the heatmap. Answers 201 with "
     "`Location`; waits for a slot of the plan admission (503 with `Retry-After` when it is full).",
-    responses=responses(404, 415, 422),
-    dependencies=[JsonBody],
+    responses=responses(404, 406, 415, 422),
+    dependencies=[JsonOnly, JsonBody],
 )
 async def create_landscape(body: LandscapeRequest, request: Request, settings: SettingsDep) -> Response:
     db: Database = request.app.state.db

@@ -315,3 +315,13 @@ def test_a_number_of_5000_digits_is_named_as_such(client: httpx.Client) -> None:
     all the same, so the message says which rule it broke (it said "not valid JSON")."""
     r = _raw(client, "/v1/plans", '{"robot_id": "table1", "task": {"duration_s": ' + "1" * 5000 + "}}")
     assert _fields(r) == ["body"] and "has more than 4300 digits" in r.json()["detail"]
+
+
+@pytest.mark.parametrize("path", ["/v1/plans", "/v1/plans/shortest-duration", "/v1/tuning-jobs", "/v1/landscapes"])
+def test_posts_that_answer_json_refuse_an_accept_without_it_and_vary_on_it(client: httpx.Client, path: str) -> None:
+    """``Accept: text/csv`` on a resource that answers JSON only is a 406 before any work (the
+    shortest-duration, tuning-job and landscape POSTs ignored it and answered JSON), and a 406
+    says ``Vary: Accept``."""
+    r = client.post(path, json={"robot_id": "table1", "task": PAPER_TASK}, headers={"accept": "text/csv"})
+    assert r.status_code == 406, r.text
+    assert r.headers["vary"] == "Accept" and r.json()["available"] == ["application/json"]
