@@ -229,8 +229,9 @@ def _finite(value: float) -> float | None:
 
 
 def joints_of(model: RobotModel) -> tuple[list[JointOut], list[str]]:
-    """The joints with their API units and limits, and notes on the joints without limits."""
-    joints, unlimited = [], []
+    """The joints with their API units and limits, and notes on the joints without limits and on
+    revolute limits that look like degrees given as radians."""
+    joints, unlimited, turns = [], [], []
     for name, link in zip(model.joint_names, model.links, strict=True):
         effort = _finite(link.effort_limit)  # N m or N
         if link.prismatic:
@@ -257,7 +258,14 @@ def joints_of(model: RobotModel) -> tuple[list[JointOut], list[str]]:
             )
         if not (math.isfinite(link.lower) and math.isfinite(link.upper)):
             unlimited.append(name)
+        elif not link.prismatic and link.upper - link.lower > 4.0 * math.pi:
+            turns.append(f"{name} ({link.lower:g} to {link.upper:g} rad)")
     notes = []
+    if turns:
+        notes.append(
+            f"joint(s) {', '.join(turns)} may turn more than twice between their limits: a parameter set's limits are in "
+            "radians (-170 deg is -2.967), and were taken as given"
+        )
     if unlimited:
         notes.append(
             f"joint(s) {', '.join(unlimited)} have no position limit on at least one side (a continuous joint, a revolute "

@@ -325,3 +325,17 @@ def test_posts_that_answer_json_refuse_an_accept_without_it_and_vary_on_it(clien
     r = client.post(path, json={"robot_id": "table1", "task": PAPER_TASK}, headers={"accept": "text/csv"})
     assert r.status_code == 406, r.text
     assert r.headers["vary"] == "Accept" and r.json()["available"] == ["application/json"]
+
+
+def test_revolute_limits_that_look_like_degrees_are_noted(client: httpx.Client, robot: dict[str, Any]) -> None:
+    """A parameter set's limits are radians; ``{"lower": -170, "upper": 170}`` is 54 turns, kept
+    as given (multi-turn joints exist) but said in the robot's notes."""
+    params = copy.deepcopy(robot)
+    params["name"] = "degrees-as-radians"
+    params["links"][1]["limits"] = {"lower": -170.0, "upper": 170.0}
+    r = client.post("/v1/robots", json=params)
+    assert r.status_code == 201, r.text
+    (note,) = [n for n in r.json()["notes"] if "radians" in n]
+    assert "joint2 (-170 to 170 rad)" in note
+    params["links"][1]["limits"] = {"lower": -3.0, "upper": 3.0}
+    assert not [n for n in client.post("/v1/robots", json=params).json()["notes"] if "radians" in n]
