@@ -156,8 +156,17 @@ class TuningJobRequest(OneRobot):
         "tunes the method on the nominal robot alone, to report what robust tuning gains on the same samples",
     )
     robust_statistic: RobustStatistic = Field(
-        default="mean", description="what robust tuning minimises over the samples' B: `mean`, `p95` or `max`"
+        default="mean",
+        description="what robust tuning minimises over the samples' B: `mean`, `p95` or `max` (only with `uncertainty`)",
     )
+
+    @field_validator("robust_statistic")
+    @classmethod
+    def _with_uncertainty(cls, value: str, info: ValidationInfo) -> str:
+        # `mean`, the default, also comes back in every stored request; another without samples is a mistake
+        if value != "mean" and "uncertainty" in info.data and info.data["uncertainty"] is None:
+            raise ValueError(f"{value!r} needs `uncertainty`: robust tuning takes it over the samples of the uncertain robot")
+        return value
 
     def phases(self) -> list[tuple[str, str, dict[str, list[float]] | None]]:
         """The GA runs of the job: ``(method, role, bounds)``, the tuned method then (with

@@ -29,7 +29,7 @@ MAX_LANDSCAPE_JOINT_STEPS = 2e7
 
 
 def _invalid(loc: list[Any], msg: str) -> ApiValidationError:
-    where = ".".join(str(p) for p in loc[1:])
+    where = ".".join(str(p) for p in loc[1:]) or "body"  # the body as a whole: "body: ..." (it read ": ...")
     return ApiValidationError(f"{where}: {msg}", [{"loc": loc, "msg": msg}])
 
 

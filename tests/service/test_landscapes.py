@@ -115,5 +115,5 @@ def test_landscape_errors_name_the_field(client: httpx.Client) -> None:
         y={"name": "epsilon", "min": 0.001, "max": 1.0, "steps": 128},
     )
     r = client.post("/v1/landscapes", json=big)
-    assert _field(r) == "body" and re.search(r"joint-steps .* more than 2e\+07", r.json()["detail"])
+    assert _field(r) == "body" and re.search(r"^body: the grid is .*joint-steps .* more than 2e\+07", r.json()["detail"])
     assert client.get(f"/v1/landscapes/{'0' * 32}").status_code == 404

@@ -339,3 +339,11 @@ def test_revolute_limits_that_look_like_degrees_are_noted(client: httpx.Client, 
     assert "joint2 (-170 to 170 rad)" in note
     params["links"][1]["limits"] = {"lower": -3.0, "upper": 3.0}
     assert not [n for n in client.post("/v1/robots", json=params).json()["notes"] if "radians" in n]
+
+
+def test_a_robust_statistic_without_uncertainty_is_refused(client: httpx.Client) -> None:
+    """``p95`` or ``max`` over samples the job does not draw was accepted and meant nothing; ``mean``,
+    the default that every stored request carries, stays valid."""
+    for statistic in ("p95", "max"):
+        r = client.post("/v1/tuning-jobs", json={**job_body(), "robust_statistic": statistic})
+        assert _fields(r) == ["body.robust_statistic"] and "needs `uncertainty`" in r.json()["detail"]
