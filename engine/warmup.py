@@ -84,7 +84,7 @@ def loop_callees(robot: RobotModel) -> list[tuple[Any, tuple[Any, ...]]]:
     (:func:`_compile_loop_callees`). The buffers that give the types are made by the kernels'
     Python functions: compiling them first would delay the callees by a second and a half. The
     planner part's compilation gets to them in the order distance, SVD, QP, dynamics (10, 13,
-    16 and 17 s after the start, 2026-11-29), later than the tools part can have compiled all
+    16 and 17 s after the start, 2026-11-29), sooner than the tools part can have compiled all
     four (18 s): the SVD, the quickest (2 s), comes last, so that the planner part compiles that
     one itself and loads the other three (with it second, the dynamics came 1 s late and the
     planner part compiled them, 4 s: a cold compilation of 34 s instead of 31)."""

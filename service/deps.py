@@ -217,24 +217,31 @@ def negotiate(accept: str | None, offered: list[str]) -> str | None:
     return best or None
 
 
+def _refuse_without_json(request: Request, detail: str) -> None:
+    accept = request.headers.get("accept")
+    if negotiate(accept, ["application/json"]) is None:
+        raise NotAcceptableError(f"{accept!r} not available: {detail}", ["application/json"])
+
+
 async def json_only(request: Request) -> None:
-    """A dependency of the resources that answer JSON only: a request whose ``Accept`` excludes
-    JSON (``text/csv``, say) is a 406, which for a plan points to the trajectory export."""
-    if negotiate(request.headers.get("accept"), ["application/json"]) is None:
-        if not request.url.path.startswith("/v1/plans") or request.url.path.endswith("/shortest-duration"):
-            raise NotAcceptableError(
-                f"{request.headers.get('accept')!r} not available: this resource answers application/json",
-                ["application/json"],
-            )
-        plan_id = request.path_params.get("plan_id")
-        export = f"/v1/plans/{plan_id}/trajectory" if plan_id else "/v1/plans/{plan_id}/trajectory"
-        raise NotAcceptableError(
-            f"{request.headers.get('accept')!r} not available: plans are application/json; a plan's trajectory is "
-            f"also CSV, MAT, NPZ or a ROS JointTrajectory at GET {export} (`Accept` or `?format=csv|mat|npz|json|ros`)",
-            ["application/json"],
-        )
+    """A dependency of the JSON-only plan resources: a request whose ``Accept`` excludes JSON
+    (``text/csv``, say) is a 406 that points to the trajectory export instead of a JSON answer."""
+    plan_id = request.path_params.get("plan_id")
+    export = f"/v1/plans/{plan_id}/trajectory" if plan_id else "/v1/plans/{plan_id}/trajectory"
+    _refuse_without_json(
+        request,
+        "plans are application/json; a plan's trajectory is also CSV, MAT, NPZ or a ROS JointTrajectory at "
+        f"GET {export} (`Accept` or `?format=csv|mat|npz|json|ros`)",
+    )
 
 
+async def json_answer(request: Request) -> None:
+    """A dependency of the other resources that answer JSON only: an ``Accept`` that excludes
+    JSON is a 406 before any work."""
+    _refuse_without_json(request, "this resource answers application/json")
+
+
+JsonAnswer = Depends(json_answer)
 JsonOnly = Depends(json_only)
 
 

@@ -986,9 +986,8 @@ def fig_compare_torques(plans: Sequence[PlanData]) -> Figure:
             mixed = on is not ax
             for k, data in at:
                 if bool(data.prismatic[j]) == kind:
-                    label = f"{data.label} [{data.id[:8]}]" if j == 0 else None
                     style = {"linestyle": "--"} if mixed else {}
-                    _line(on, data.t, data.dynamics.tau[:, j], label=label, color=f"C{k % 10}", **style)
+                    _line(on, data.t, data.dynamics.tau[:, j], color=f"C{k % 10}", **style)
             limits = {
                 float(d.dynamics.limit[j]) for _, d in at if bool(d.prismatic[j]) == kind and np.isfinite(d.dynamics.limit[j])
             }
@@ -1000,6 +999,8 @@ def fig_compare_torques(plans: Sequence[PlanData]) -> Figure:
                 on.set_ylabel(f"prismatic, dashed [{unit}]")
             else:
                 ax.set_ylabel(f"joint {j + 1} [{unit}]")
+    for k, data in enumerate(plans):  # the legend's entries on the first panel, whichever axis a plan's lines are on
+        axes[0].plot([], [], color=f"C{k % 10}", label=f"{data.label} [{data.id[:8]}]")
     if limits_drawn := any(np.isfinite(d.dynamics.limit).any() for d in plans):
         axes[0].plot([], [], color="C3", linestyle="--", linewidth=1, label="the joint's limit")
     _legend(axes[0], 2 if limits_drawn else 1)

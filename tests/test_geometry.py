@@ -468,3 +468,20 @@ def test_overlaps_have_their_depth_and_fail_a_plan_at_the_default_clearance() ->
     assert result.metrics.clearance_broken_pair == ("carrier", "obstacle0") and result.metrics.time_collision == 0.0
     assert result.clearance[0] == pytest.approx(-0.75, abs=1e-12)  # at the start, as the analytic case
     assert result.metrics.min_clearance <= result.clearance[0]
+
+
+def test_touching_shapes_are_at_distance_zero() -> None:
+    """Contact exactly, where GJK ends on the boundary of the cores' difference (the EPA entry that
+    tells touching from overlapping): a box on a box face to face, a box edge on a face, a point on
+    a face, a capsule lying on a box; each at 0 (less the radii), not a depth."""
+    box = shape_from_dict({"type": "box", "size_m": [1.0, 1.0, 1.0]})
+    on_top = shape_from_dict({"type": "box", "size_m": [0.4, 0.4, 0.4], "position_m": [0.1, -0.2, 0.7]})
+    turned = {"type": "box", "size_m": [0.4, 0.4, 0.4], "quaternion": [math.cos(math.pi / 8), math.sin(math.pi / 8), 0.0, 0.0]}
+    edge = shape_from_dict({**turned, "position_m": [0.0, 0.0, 0.5 + 0.2 * math.sqrt(2.0)]})
+    point = shape_from_dict({"type": "sphere", "radius_m": 0.05, "position_m": [0.2, 0.3, 0.5]})
+    lying = shape_from_dict({"type": "capsule", "radius_m": 0.05, "from_m": [-0.3, 0.0, 0.55], "to_m": [0.3, 0.0, 0.55]})
+    assert distance(box, on_top).distance == pytest.approx(0.0, abs=1e-12)
+    assert distance(box, edge).distance == pytest.approx(0.0, abs=1e-12)
+    assert distance(box, point).distance == pytest.approx(-0.05, abs=1e-12)
+    assert distance(point, box).distance == pytest.approx(-0.05, abs=1e-12)
+    assert distance(box, lying).distance == pytest.approx(0.0, abs=1e-12)

@@ -495,3 +495,30 @@ def test_collision_geometry_round_trips_through_the_export(rng):
                         axis * np.sign(axis @ placement.rotation[:, 2]), placement.rotation[:, 2], atol=1e-12
                     )
                     assert obj.geometry.radius == pytest.approx(shape.dims[0] if shape.type == "cylinder" else shape.radius)
+
+
+def test_only_a_cylinder_with_a_sphere_of_its_radius_on_each_end_is_a_capsule():
+    """The reader merges a capsule as the export writes it, and nothing else: a sphere of another
+    radius, one off the end face's centre, or one end only stay as they are; two cylinders sharing
+    an end sphere take it once."""
+
+    def link_with(geometries):
+        body = "".join(
+            f'<collision><origin xyz="{xyz}" rpy="0 0 0"/><geometry>{g}</geometry></collision>' for xyz, g in geometries
+        )
+        return RobotModel.from_urdf(
+            _third("revolute", "<axis xyz='1 0 0'/>", _link("l3", f'<inertial><mass value="1"/>{INERTIA}</inertial>{body}'))
+        )
+
+    cylinder = ("0 0 0", "<cylinder radius='0.1' length='0.4'/>")
+    end = ("0 0 0.2", "<sphere radius='0.1'/>")
+    other_end = ("0 0 -0.2", "<sphere radius='0.1'/>")
+    cases = {
+        "merged": ([cylinder, end, other_end], ["capsule"]),
+        "radius": ([cylinder, end, ("0 0 -0.2", "<sphere radius='0.09'/>")], ["cylinder", "sphere", "sphere"]),
+        "off centre": ([cylinder, end, ("0.01 0 -0.2", "<sphere radius='0.1'/>")], ["cylinder", "sphere", "sphere"]),
+        "one end": ([cylinder, end], ["cylinder", "sphere"]),
+        "shared": ([cylinder, end, other_end, ("0 0 0.4", "<cylinder radius='0.1' length='0.4'/>")], ["capsule", "cylinder"]),
+    }
+    for name, (geometries, types) in cases.items():
+        assert [s.type for s in link_with(geometries).links[2].collision_shapes] == types, name

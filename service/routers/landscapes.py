@@ -12,8 +12,8 @@ from service.deps import (
     DbDep,
     Dpi,
     Format,
+    JsonAnswer,
     JsonBody,
-    JsonOnly,
     LandscapeId,
     SessionDep,
     SessionRoute,
@@ -43,7 +43,7 @@ router = APIRouter(prefix="/v1/landscapes", tags=["landscapes"], route_class=Ses
     "task is 1.5e6). `tuning_job_id` marks that job's optimum and tuned DLS on the heatmap. Answers 201 with "
     "`Location`; waits for a slot of the plan admission (503 with `Retry-After` when it is full).",
     responses=responses(404, 406, 415, 422),
-    dependencies=[JsonOnly, JsonBody],
+    dependencies=[JsonAnswer, JsonBody],
 )
 async def create_landscape(body: LandscapeRequest, request: Request, settings: SettingsDep) -> Response:
     db: Database = request.app.state.db

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response, status
 
-from service.deps import FieldsQuery, JsonBody, JsonOnly, SessionRoute, SettingsDep, run_admitted
+from service.deps import FieldsQuery, JsonAnswer, JsonBody, SessionRoute, SettingsDep, run_admitted
 from service.errors import responses
 from service.infra import jsonio
 from service.infra.db import Database
@@ -31,7 +31,7 @@ router = APIRouter(prefix="/v1/plans", tags=["plans"], route_class=SessionRoute)
     "duration up to the maximum is feasible, `search.success` is false and the plan is the one at the longest "
     "duration tried. `fields` as for `POST /v1/plans`.",
     responses=responses(404, 406, 415, 422),
-    dependencies=[JsonOnly, JsonBody],
+    dependencies=[JsonAnswer, JsonBody],
 )
 async def create_shortest_duration_plan(
     body: ShortestDurationRequest, request: Request, settings: SettingsDep, fields: FieldsQuery = None

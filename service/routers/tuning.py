@@ -7,7 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request, Response, status
 
-from service.deps import DbDep, JobId, JsonBody, JsonOnly, Limit, Offset, SessionDep, SessionRoute, SettingsDep
+from service.deps import DbDep, JobId, JsonAnswer, JsonBody, Limit, Offset, SessionDep, SessionRoute, SettingsDep
 from service.errors import responses
 from service.schemas.common import JobStatus
 from service.schemas.tuning import TuningJobList, TuningJobOut, TuningJobRequest, TuningJobResult
@@ -30,7 +30,7 @@ router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"], route_class=Sessio
     f"{MAX_JOB_JOINT_STEPS:.2g} joint-steps (the same times the plan-steps of the tasks times the robot's joints; "
     "about a microsecond each); 429 with `Retry-After` when `SPACEARM_MAX_QUEUED_JOBS` jobs are already queued.",
     responses=responses(404, 406, 415, 422),
-    dependencies=[JsonOnly, JsonBody],
+    dependencies=[JsonAnswer, JsonBody],
 )
 def create_tuning_job(
     body: TuningJobRequest,

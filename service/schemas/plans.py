@@ -136,7 +136,11 @@ class PlanRerun(Input):
     from_plan_id: str = Field(pattern=ID_PATTERN, description="the stored plan whose request is the starting point")
     robot_id: str | None = Field(default=None, description="another stored robot (drops the stored inline `robot`)")
     robot: RobotParams | None = Field(default=None, description="an inline robot, whole (drops the stored `robot_id`)")
-    task: TaskPatch | None = Field(default=None, description="merged into the stored task (`path` by its `type`)")
+    task: TaskPatch | None = Field(
+        default=None,
+        description="merged into the stored task (`path` by its `type`; a new path type drops the stored `duration_s`, "
+        "`target_position_m` and `target_attitude_quaternion` unless this gives them)",
+    )
     method: MethodPatch | None = Field(default=None, description="merged into the stored method (by its `name`)")
     feedback_gain: float | None = Field(default=None, description="replaces the stored value (1/s; null: the default)")
     aggregation: str | None = Field(default=None, description="replaces the stored value (null: the default)")

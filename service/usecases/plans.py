@@ -511,6 +511,10 @@ def listing(session: Session, limit: int, offset: int, kept: PlanFilter | None =
 REPLACED_WHEN_CHANGED: dict[tuple[str, ...], str | None] = {("task", "path"): "type", ("method",): "name", ("robot",): None}
 #: Request members of which exactly one is given: giving one drops the other.
 EITHER = ("robot_id", "robot")
+#: A task's members that belong to its path type (a line's targets, and a duration that a
+#: waypoints or raster path would be rescaled to): a patch that changes the path's type drops the
+#: ones it does not give, so the new path starts from its own defaults.
+PATH_BOUND = ("duration_s", "target_position_m", "target_attitude_quaternion")
 
 
 def merge_patch(target: Any, patch: Any, at: tuple[str, ...] = ()) -> Any:
@@ -537,6 +541,19 @@ def merge_patch(target: Any, patch: Any, at: tuple[str, ...] = ()) -> Any:
     return out
 
 
+def _path_bound_dropped(stored: dict[str, Any], patch: dict[str, Any]) -> dict[str, Any]:
+    """``patch`` with a null for each of :data:`PATH_BOUND` it does not give, if it changes the
+    stored task's path type."""
+    task = patch.get("task")
+    if not isinstance(task, dict):
+        return patch
+    path = task.get("path")
+    stored_path = (stored.get("task") or {}).get("path") or {}
+    if not isinstance(path, dict) or "type" not in path or path["type"] == stored_path.get("type", "line"):
+        return patch
+    return {**patch, "task": {**dict.fromkeys(PATH_BOUND), **task}}
+
+
 def request_of(db: Database, body: dict[str, Any]) -> PlanRequest:
     """The plan request of a ``POST /v1/plans`` body: a plan request, or a :class:`PlanRerun`
     merged into its stored plan's request; validation errors under ``body`` as FastAPI's own
@@ -549,7 +566,7 @@ def request_of(db: Database, body: dict[str, Any]) -> PlanRequest:
             stored = session.scalar(select(Plan.request).where(Plan.id == rerun.from_plan_id))
         if stored is None:
             raise NotFoundError("plan", rerun.from_plan_id)
-        return PlanRequest.model_validate(merge_patch(stored, rerun.patch()))
+        return PlanRequest.model_validate(merge_patch(stored, _path_bound_dropped(stored, rerun.patch())))
     except ValidationError as exc:
         raise body_invalid(exc) from None
 

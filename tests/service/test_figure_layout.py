@@ -360,3 +360,8 @@ def test_compared_torques_of_a_revolute_and_a_prismatic_joint_keep_their_units_a
     )
     (torque,) = [line for line in panels[2].get_lines() if len(line.get_ydata()) == len(paper.t)]
     np.testing.assert_array_equal(torque.get_ydata(), paper.dynamics.tau[:, 2])
+    labels = [text.get_text() for text in panels[0].get_legend().get_texts()]
+    assert [label for label in labels if "a" * 8 in label or "d" * 8 in label] == [  # each plan once, whatever its axes
+        f"{paper.label} [{'a' * 8}]",
+        f"{boom.label} [{'d' * 8}]",
+    ]

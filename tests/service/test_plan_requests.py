@@ -225,3 +225,14 @@ def test_a_line_without_a_duration_stores_the_15_s_it_used_and_a_raster_its_own_
 def test_metrics_in_degrees_come_back_as_given(stored: dict[str, Any]) -> None:
     """6 deg/s went to radians and back as 6.000000000000001: the degrees are given to 15 digits."""
     assert stored["paper"]["metrics"]["joint_speed_limit_deg_s"] == 6.0
+
+
+def test_a_rerun_with_another_path_type_drops_the_old_paths_members(client: httpx.Client, stored: dict[str, Any]) -> None:
+    """A line re-run as waypoints without nulls: the line's targets and its 15 s go (the targets
+    were a 422, and the waypoints were rescaled to the line's duration); a duration given is kept."""
+    waypoints = preset(client, "waypoint-inspection")["task"]
+    moved = post(client, {"from_plan_id": stored["paper"]["id"], "task": {"path": waypoints["path"]}, "replay": False})
+    task = moved["request"]["task"]
+    assert task["path"] == waypoints["path"] and task["duration_s"] is None and task["target_position_m"] is None
+    timed = post(client, {"from_plan_id": stored["paper"]["id"], "task": {"path": waypoints["path"], "duration_s": 90}})
+    assert timed["request"]["task"]["duration_s"] == 90.0
