@@ -131,11 +131,13 @@ def rpy_spacedyn_to_matrix(angles: ArrayLike) -> FloatArray:
 
 def matrix_to_rpy_spacedyn(A: ArrayLike) -> FloatArray:
     """SpaceDyn RPY angles ``(a, b, c) (..., 3)`` in rad of the attitude ``A``; inverse of
-    :func:`rpy_spacedyn_to_matrix` with ``b`` in [-pi/2, pi/2]."""
+    :func:`rpy_spacedyn_to_matrix` with ``b`` in [-pi/2, pi/2]. In gimbal lock (``b`` = +-pi/2,
+    where only ``c + sin(b) a`` is defined) ``a`` is 0 and ``c`` takes the whole turn."""
     C = np.swapaxes(np.asarray(A, dtype=float), -1, -2)
-    b = np.arcsin(np.clip(C[..., 0, 2], -1.0, 1.0))
-    a = np.arctan2(-C[..., 1, 2], C[..., 2, 2])
-    c = np.arctan2(-C[..., 0, 1], C[..., 0, 0])
+    b = np.arctan2(C[..., 0, 2], np.hypot(C[..., 0, 0], C[..., 0, 1]))
+    locked = np.hypot(C[..., 0, 0], C[..., 0, 1]) < 1e-12  # a's and c's atan2 would read rounding noise
+    a = np.where(locked, 0.0, np.arctan2(-C[..., 1, 2], C[..., 2, 2]))
+    c = np.where(locked, np.arctan2(C[..., 1, 0], C[..., 1, 1]), np.arctan2(-C[..., 0, 1], C[..., 0, 0]))
     return np.stack((a, b, c), axis=-1)
 
 

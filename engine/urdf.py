@@ -72,7 +72,14 @@ from defusedxml import ElementTree as SafeET
 
 from engine.bounds import MAX_JOINTS, MAX_URDF_LINKS
 from engine.errors import ParameterError
-from engine.spatial import FloatArray, is_rotation, matrix_to_quaternion, quaternion_to_matrix
+from engine.spatial import (
+    FloatArray,
+    is_rotation,
+    matrix_to_quaternion,
+    matrix_to_rpy_spacedyn,
+    quaternion_to_matrix,
+    rpy_spacedyn_to_matrix,
+)
 
 if TYPE_CHECKING:
     from engine.geometry import Shape
@@ -400,16 +407,9 @@ def urdf_to_dict(
 
 
 def _rpy(rpy: list[float]) -> FloatArray:
-    """URDF's fixed-axis roll-pitch-yaw: ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
+    """URDF's fixed-axis roll-pitch-yaw: ``Rz(yaw) Ry(pitch) Rx(roll)``, SpaceDyn's attitude of
+    the negated angles (``(Rx(-r) Ry(-p) Rz(-y))^T``)."""
+    return rpy_spacedyn_to_matrix(-np.asarray(rpy, dtype=float))
 
 
 def _collision_shapes(
@@ -842,7 +842,4 @@ def _text(values: Any) -> str:
 
 def _rpy_of(R: FloatArray) -> FloatArray:
     """URDF's roll-pitch-yaw of a rotation matrix (the inverse of :func:`_rpy`)."""
-    pitch = math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0]))
-    if math.hypot(R[0, 0], R[1, 0]) < 1e-12:  # gimbal lock: only roll - yaw (or roll + yaw) is defined
-        return np.array([0.0, pitch, math.atan2(-R[0, 1], R[1, 1])])
-    return np.array([math.atan2(R[2, 1], R[2, 2]), pitch, math.atan2(R[1, 0], R[0, 0])])
+    return -matrix_to_rpy_spacedyn(R)

@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -74,6 +76,16 @@ def test_quaternion_and_rpy_round_trip(phi):
     R = exp_so3(np.array(phi))
     np.testing.assert_allclose(quaternion_to_matrix(matrix_to_quaternion(R)), R, atol=1e-12)
     np.testing.assert_allclose(rpy_spacedyn_to_matrix(matrix_to_rpy_spacedyn(R)), R, atol=1e-9)
+
+
+def test_rpy_in_gimbal_lock_round_trips():
+    """b = +-pi/2, where a and c alone are not defined: the angles found give the matrix back."""
+    for b in (math.pi / 2, -math.pi / 2):
+        for a, c in ((0.3, -1.1), (2.0, 0.5), (-2.9, 3.0)):
+            R = rpy_spacedyn_to_matrix([a, b, c])
+            angles = matrix_to_rpy_spacedyn(R)
+            assert angles[0] == 0.0 and angles[1] == pytest.approx(b, abs=1e-12)
+            np.testing.assert_allclose(rpy_spacedyn_to_matrix(angles), R, atol=1e-12)
 
 
 def test_small_angles_are_exact():
