@@ -532,7 +532,6 @@ def _penetration(sa, sb, vertices, buf, count, witness):
             P[m, r] = W[m, r]
             PA[m, r] = A[m, r]
             PB[m, r] = B[m, r]
-    for m in range(count):
         size = max(size, np.sqrt(P[m, 0] * P[m, 0] + P[m, 1] * P[m, 1] + P[m, 2] * P[m, 2]))
     n_points = count
     for axis in range(6):  # a point: a second one, along the axes
@@ -563,10 +562,8 @@ def _penetration(sa, sb, vertices, buf, count, witness):
         uu = ux * ux + uy * uy + uz * uz
         for trial in range(4):
             sign = 1.0 if trial % 2 == 0 else -1.0
-            if trial < 2:
-                _support_point(sa, sb, vertices, sign * d1x, sign * d1y, sign * d1z, points, np.int64(2), tmp)
-            else:
-                _support_point(sa, sb, vertices, sign * d2x, sign * d2y, sign * d2z, points, np.int64(2), tmp)
+            dx, dy, dz = (d1x, d1y, d1z) if trial < 2 else (d2x, d2y, d2z)
+            _support_point(sa, sb, vertices, sign * dx, sign * dy, sign * dz, points, np.int64(2), tmp)
             vx = P[2, 0] - P[0, 0]
             vy = P[2, 1] - P[0, 1]
             vz = P[2, 2] - P[0, 2]

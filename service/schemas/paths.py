@@ -59,7 +59,8 @@ def rotation(quaternion: list[float], field: str) -> FloatArray:
 
 
 class PathContext(NamedTuple):
-    """What a task says about its path: ``duration`` (s, None: the path's own), ``ramp_time`` (s),
+    """What a task says about its path: ``duration`` (s, None: the path's own timing; never None
+    for a line or an arc, whose default ``TaskIn`` fills in), ``ramp_time`` (s),
     ``profile``, and a line's target pose (m; a rotation matrix, None when not given) and what
     the task tracks."""
 
@@ -156,7 +157,7 @@ class LinePathIn(PathSchema):
         return {
             "target_position": task.target_position,
             "target_attitude": start_attitude if task.target_attitude is None else task.target_attitude,
-            "duration": self.default_duration_s if task.duration is None else task.duration,
+            "duration": task.duration,  # filled in by TaskIn when left out
             "ramp_time": task.ramp_time,
             "profile": task.profile,
         }
@@ -213,7 +214,7 @@ class ArcPathIn(PathSchema):
     def spec(self, start_attitude: FloatArray, task: PathContext) -> dict[str, Any]:
         law = {
             "attitude": self.attitude,
-            "duration": self.default_duration_s if task.duration is None else task.duration,
+            "duration": task.duration,  # filled in by TaskIn when left out
             "ramp_time": task.ramp_time,
             "profile": task.profile,
         }

@@ -61,6 +61,9 @@ TARGET_SCENE = SceneIn(
     avoidance_gain=0.5,
 )
 
+#: The paper line's method: adaptive damping at the GA optimum for the Table-1 robot.
+PAPER_METHOD = MethodIn.model_validate({"name": "adaptive", "params": PAPER_TASK_PARAMS["adaptive"]})
+
 PRESETS: dict[str, TaskPreset] = {
     "paper-line": TaskPreset(
         name="paper-line",
@@ -69,7 +72,7 @@ PRESETS: dict[str, TaskPreset] = {
         "here: they were tuned for the paper's exact robot)",
         robot_id="table1",
         task=TaskIn(**PAPER_TASK_EXAMPLE),
-        method=MethodIn.model_validate({"name": "adaptive", "params": PAPER_TASK_PARAMS["adaptive"]}),
+        method=PAPER_METHOD,
     ),
     "paper-line-quintic": TaskPreset(
         name="paper-line-quintic",
@@ -78,14 +81,14 @@ PRESETS: dict[str, TaskPreset] = {
         "0.04 and 0.2 keeps it), so the plan fails where the trapezoidal one succeeds",
         robot_id="table1",
         task=TaskIn(**{**PAPER_TASK_EXAMPLE, "profile": "quintic"}),
-        method=MethodIn.model_validate({"name": "adaptive", "params": PAPER_TASK_PARAMS["adaptive"]}),
+        method=PAPER_METHOD,
     ),
     "paper-line-fine": TaskPreset(
         name="paper-line-fine",
         description="The paper's detection line with dt 0.05 s, and paper-line's method",
         robot_id="table1",
         task=TaskIn(**{**PAPER_TASK_EXAMPLE, "dt_s": 0.05}),
-        method=MethodIn.model_validate({"name": "adaptive", "params": PAPER_TASK_PARAMS["adaptive"]}),
+        method=PAPER_METHOD,
     ),
     "raster-patch": TaskPreset(
         name="raster-patch",
