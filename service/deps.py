@@ -255,15 +255,14 @@ async def json_body(request: Request) -> None:
     if content_type is None:
         if request.headers.get("content-length", "0") == "0" and "transfer-encoding" not in request.headers:
             return
-        raise UnsupportedMediaTypeError(
-            "a body without Content-Type: this resource reads application/json (with curl: -H 'content-type: application/json')"
-        )
-    main, _, sub = content_type.split(";", 1)[0].strip().lower().partition("/")
-    if main == "application" and (sub == "json" or sub.endswith("+json")):
-        return
+        sent = "a body without Content-Type"
+    else:
+        main, _, sub = content_type.split(";", 1)[0].strip().lower().partition("/")
+        if main == "application" and (sub == "json" or sub.endswith("+json")):
+            return
+        sent = f"Content-Type {content_type!r} is not JSON"
     raise UnsupportedMediaTypeError(
-        f"Content-Type {content_type!r} is not JSON: this resource reads application/json "
-        "(with curl: -H 'content-type: application/json')"
+        f"{sent}: this resource reads application/json (with curl: -H 'content-type: application/json')"
     )
 
 
