@@ -18,7 +18,7 @@ from scipy.optimize import minimize
 
 from engine import CartesianTask, RobotModel, State, make_inverse, make_secondary, paper_task, plan, plan_batch, table1_robot
 from engine.errors import ParameterError
-from engine.geometry import Scene, Shape, build_geometry, distance, shape_from_dict
+from engine.geometry import Scene, Shape, build_geometry, distance, posed, shape_from_dict
 from engine.kernels import chain as chain_kernels
 from engine.kernels import geometry as geometry_kernels
 from engine.kinematics import as_state, forward_kinematics
@@ -135,6 +135,37 @@ def test_an_overlaps_depth_is_the_shortest_way_out(kind_a: str, kind_b: str) -> 
         for direction in rng.normal(size=(200, 3)):
             assert core_distance(0.99 * depth * direction / np.linalg.norm(direction)) < 0.0
     assert checked >= 5
+
+
+@pytest.mark.parametrize(("kind_a", "kind_b"), [("cylinder", "cylinder"), ("cylinder", "box"), ("box", "box")])
+def test_epas_polytope_stays_closed_with_every_neighbour_known(kind_a: str, kind_b: str) -> None:
+    """After EPA on overlapping cores, its polytope's faces (those still on it) form a closed
+    surface (Euler: points - edges + faces = 2) and each face knows the face across each of its
+    edges, which runs that edge the other way and knows it back: the bookkeeping that lets the
+    search for the faces a new point sees walk from neighbour to neighbour. (Not convex to the
+    last bit: a face the new point sees by less than EPA's tolerance stays.)"""
+    rng = np.random.default_rng(zlib.crc32(f"epa polytope {kind_a} {kind_b}".encode()))
+    buf = geometry_kernels.gjk_buffers()
+    checked = 0
+    for _ in range(400):
+        a, _ = _random_shape(rng, kind_a)
+        b, _ = _random_shape(rng, kind_b)
+        witness = np.empty((2, 3))
+        buf[8][:] = 0  # no face from the last call
+        d = geometry_kernels.shape_distance(posed(a, None, None), posed(b, None, None), np.zeros((1, 3)), buf, witness)
+        if d + a.radius + b.radius > -1e-3:
+            continue
+        checked += 1
+        faces = buf[8]
+        live = [f for f in range(faces.shape[0]) if faces[f, 3] == 1]
+        used = sorted({int(p) for f in live for p in faces[f, :3]})
+        assert len(used) - 3 * len(live) // 2 + len(live) == 2
+        for f in live:
+            for e in range(3):
+                g, eg = divmod(int(faces[f, 4 + e]), 3)
+                assert faces[g, 3] == 1 and faces[g, 4 + eg] == 3 * f + e
+                assert (faces[g, eg], faces[g, (eg + 1) % 3]) == (faces[f, (e + 1) % 3], faces[f, e])
+    assert checked >= 10
 
 
 def _cylinder_oracle(cyl: Shape, other_points: np.ndarray, rng: np.random.Generator) -> float:

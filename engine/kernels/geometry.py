@@ -146,9 +146,11 @@ def gjk_buffers():
     """Scratch of :func:`core_distance`: ``(W, A, B (4, 3) simplex points and their shapes'
     points, lam (4,) barycentric weights, tmp (8, 3), kept (3, 4, 3) and kept_lam (4,): the
     simplex of the last step; then EPA's (:func:`_penetration`) points (3, EPA_MAX_POINTS, 3):
-    the polytope's and each shape's, faces (EPA_MAX_FACES, 4) int64: three points and 1 while
-    on the polytope, planes (EPA_MAX_FACES, 4): unit outward normal and the origin's distance,
-    and horizon edges (3 EPA_MAX_FACES, 2) int64)``."""
+    the polytope's and each shape's, faces (EPA_MAX_FACES, 7) int64: three points, 1 while on
+    the polytope (0 gone), and across each edge the neighbour's ``3 face + edge``, planes
+    (EPA_MAX_FACES, 4): unit outward normal and the origin's distance, and (3 EPA_MAX_FACES, 5)
+    int64: the horizon's edges (two points and the neighbour across), the search's stack, and
+    the faces gone)``."""
     return (
         np.empty((4, 3)),
         np.empty((4, 3)),
@@ -158,9 +160,9 @@ def gjk_buffers():
         np.empty((3, 4, 3)),
         np.empty(4),
         np.empty((3, EPA_MAX_POINTS, 3)),
-        np.empty((EPA_MAX_FACES, 4), dtype=np.int64),
+        np.empty((EPA_MAX_FACES, 7), dtype=np.int64),
         np.empty((EPA_MAX_FACES, 4)),
-        np.empty((3 * EPA_MAX_FACES, 2), dtype=np.int64),
+        np.empty((3 * EPA_MAX_FACES, 5), dtype=np.int64),
     )
 
 
@@ -524,7 +526,9 @@ def _penetration(sa, sb, vertices, buf, count, witness):
     origin is on the difference's boundary (touching), -1 when the simplex is flat (the
     witnesses are then left alone)."""
     W, A, B, tmp = buf[0], buf[1], buf[2], buf[4]
-    points, faces, planes, edges = buf[7], buf[8], buf[9], buf[10]
+    # horizon: per edge of the horizon its two points and the neighbour across; column 3 the
+    # search's stack, column 4 the faces gone (whose slots the new faces take)
+    points, faces, planes, horizon = buf[7], buf[8], buf[9], buf[10]
     P, PA, PB = points[0], points[1], points[2]
     size = 0.0
     for m in range(count):
@@ -606,7 +610,17 @@ def _penetration(sa, sb, vertices, buf, count, witness):
             return -1.0
         if planes[f, 0] * cx + planes[f, 1] * cy + planes[f, 2] * cz > planes[f, 3]:
             _face(P, faces, planes, f, i, k, j)
-    n_live = 4  # faces on the polytope (``n_faces`` slots are in use, some of them free again)
+    for f in range(n_faces):  # each edge's neighbour: the face that runs it the other way
+        for e in range(3):
+            a = faces[f, e]
+            b = faces[f, (e + 1) % 3]
+            faces[f, 4 + e] = -1
+            for h in range(n_faces):
+                for eh in range(3):
+                    if h != f and faces[h, eh] == b and faces[h, (eh + 1) % 3] == a:
+                        faces[f, 4 + e] = 3 * h + eh
+            if faces[f, 4 + e] < 0:
+                return -1.0
     # the nearest face (its points, normal and distance), kept as the polytope changes
     i = 0
     j = 0
@@ -638,61 +652,62 @@ def _penetration(sa, sb, vertices, buf, count, witness):
         if nx * wx + ny * wy + nz * wz - depth <= EPA_TOLERANCE * size:
             break  # the nearest face is on the boundary of the cores' difference
         new = n_points
-        # The faces the new point sees go: the nearest face, then each visible neighbour of a face
-        # gone (a flood over shared edges, so the region is one piece even where rounding makes
-        # nearly coplanar faces on a cylinder disagree); the edges to faces that stay are the horizon.
-        # faces[f, 3]: 1 on the polytope, 2 going (its edges not yet looked at), 0 gone.
-        n_edges = 0
-        faces[best, 3] = 2
+        # The faces the new point sees go: the nearest face, then, depth first across its edges,
+        # each neighbour it sees (one connected region, even where rounding makes nearly coplanar
+        # faces on a cylinder disagree). The edges to faces that stay are the horizon, met in
+        # order around it (van den Bergen's silhouette; the recursion kept on a stack).
+        faces[best, 3] = 0
+        horizon[0, 4] = best
         removed = 1
-        pending = True
-        while pending:
-            pending = False
-            for f in range(n_faces):
-                if faces[f, 3] != 2:
-                    continue
-                faces[f, 3] = 0
-                pending = True
-                for e in range(3):
-                    a = faces[f, e]
-                    b = faces[f, (e + 1) % 3]
-                    g = -1  # the face on the other side of edge a b (it runs b a there)
-                    for h in range(n_faces):
-                        if faces[h, 3] == 1 and (
-                            (faces[h, 0] == b and faces[h, 1] == a)
-                            or (faces[h, 1] == b and faces[h, 2] == a)
-                            or (faces[h, 2] == b and faces[h, 0] == a)
-                        ):
-                            g = h
-                            break
-                    if g < 0:
-                        continue  # gone already: the edge is inside the region
-                    i0 = faces[g, 0]
-                    if (
-                        planes[g, 0] * (wx - P[i0, 0]) + planes[g, 1] * (wy - P[i0, 1]) + planes[g, 2] * (wz - P[i0, 2])
-                        > EPA_TOLERANCE * size
-                    ):
-                        faces[g, 3] = 2
-                        removed += 1
-                    else:
-                        edges[n_edges, 0] = a
-                        edges[n_edges, 1] = b
-                        n_edges += 1
-        n_live -= removed
-        if n_edges == 0 or n_live + n_edges > EPA_MAX_FACES:
-            break  # rounding: the point sees no face; or no room: the nearest face so far stands
+        top = 0
+        for e in range(2, -1, -1):
+            horizon[top, 3] = faces[best, 4 + e]
+            top += 1
+        n_edges = 0
+        while top > 0:
+            top -= 1
+            across = horizon[top, 3]
+            g = across // 3
+            eg = across % 3
+            if faces[g, 3] == 0:
+                continue  # gone already: the edge is inside the region
+            i0 = faces[g, 0]
+            seen = planes[g, 0] * (wx - P[i0, 0]) + planes[g, 1] * (wy - P[i0, 1]) + planes[g, 2] * (wz - P[i0, 2])
+            if seen > EPA_TOLERANCE * size:
+                faces[g, 3] = 0
+                horizon[removed, 4] = g
+                removed += 1
+                horizon[top, 3] = faces[g, 4 + (eg + 2) % 3]
+                horizon[top + 1, 3] = faces[g, 4 + (eg + 1) % 3]
+                top += 2
+            else:  # g stays: its edge eg, run the other way, is on the horizon
+                horizon[n_edges, 0] = faces[g, (eg + 1) % 3]
+                horizon[n_edges, 1] = faces[g, eg]
+                horizon[n_edges, 2] = across
+                n_edges += 1
+        added = max(n_edges - removed, 0)
+        if n_edges < 3 or n_faces + added > EPA_MAX_FACES:
+            break  # rounding: the point sees too little; or no room: the nearest face so far stands
+        closed = True
+        for m in range(n_edges):
+            closed = closed and horizon[m, 1] == horizon[(m + 1) % n_edges, 0]
+        if not closed:
+            break  # the region is not a disc (rounding): the polytope no longer holds
         n_points += 1
         grown = True
-        for m in range(n_edges):
-            slot = n_faces
-            for f in range(n_faces):
-                if faces[f, 3] == 0:
-                    slot = f
-                    break
-            if slot == n_faces:
-                n_faces += 1
-            n_live += 1
-            grown = grown and _face(P, faces, planes, slot, edges[m, 0], edges[m, 1], np.int64(new))
+        for m in range(n_edges):  # the new faces in the slots of those gone, then new slots
+            slot = horizon[m, 4] if m < removed else n_faces + m - removed
+            horizon[m, 3] = slot
+            grown = grown and _face(P, faces, planes, slot, horizon[m, 0], horizon[m, 1], np.int64(new))
+        n_faces += added
+        for m in range(n_edges):  # neighbours: the face that stays, and the new faces on either side
+            f = horizon[m, 3]
+            after = horizon[(m + 1) % n_edges, 3]
+            across = horizon[m, 2]
+            faces[f, 4] = across
+            faces[across // 3, 4 + across % 3] = 3 * f
+            faces[f, 5] = 3 * after + 2
+            faces[after, 6] = 3 * f + 1
         if not grown:
             break  # a sliver face: the polytope no longer holds; the last nearest face stands
     # the origin's projection on the nearest face, in barycentric weights of its points
