@@ -1,9 +1,10 @@
 """Guards in front of the routers (pure ASGI middleware, so they cover every router, present and
 future):
 
-- ``TrustedHostMiddleware`` (Starlette's): only the ``Host`` names of ``SPACEARM_ALLOWED_HOSTS``
-  (default: the bind address and localhost) are answered, others get 400, so a web page whose
-  name was rebound to this machine's address (DNS rebinding) cannot drive the API.
+- ``TrustedHosts`` (Starlette's ``TrustedHostMiddleware``): only the ``Host`` names of
+  ``SPACEARM_ALLOWED_HOSTS`` (default: the bind address and localhost) are answered, others get a
+  400 problem detail, so a web page whose name was rebound to this machine's address (DNS
+  rebinding) cannot drive the API.
 - ``BodyLimitMiddleware``: request bodies over ``SPACEARM_MAX_BODY_BYTES`` (1 MiB) get 413, from
   ``Content-Length`` before anything is read, and by counting the bytes as they arrive when there
   is no ``Content-Length`` (chunked uploads).
@@ -32,6 +33,7 @@ from urllib.parse import quote
 
 import anyio
 from fastapi import FastAPI
+from starlette.datastructures import Headers
 from starlette.middleware.cors import CORSMiddleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.responses import RedirectResponse
@@ -81,6 +83,44 @@ class BodyLimitMiddleware:
         except BodyTooLargeError as exc:  # read outside FastAPI's body parsing (no handler saw it)
             response = problem(413, str(exc.detail), instance=scope.get("path"), errors=[field_error(["body"], str(exc.detail))])
             await response(scope, receive, send)
+
+
+class TrustedHosts(TrustedHostMiddleware):
+    """Starlette's check of the ``Host`` header, whose refusal (a plain-text "Invalid host
+    header") goes out as a problem detail like every other error: the check passes a request on
+    through :meth:`_trusted`, which marks its scope, so a response of an unmarked request is the
+    refusal."""
+
+    MARK = "spacearm.trusted_host"
+
+    def __init__(self, app: ASGIApp, allowed_hosts: list[str]) -> None:
+        self.inner = app
+        super().__init__(self._trusted, allowed_hosts=allowed_hosts, www_redirect=False)
+
+    async def _trusted(self, scope: Scope, receive: Receive, send: Send) -> None:
+        scope[self.MARK] = True
+        await self.inner(scope, receive, send)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await super().__call__(scope, receive, send)
+            return
+
+        async def sender(message: Message) -> None:
+            if scope.get(self.MARK):
+                await send(message)
+            elif message["type"] == "http.response.start":
+                host = Headers(scope=scope).get("host")
+                detail = (
+                    f"this API does not answer the Host {host!r} (SPACEARM_ALLOWED_HOSTS lists the names it answers)"
+                    if host
+                    else "the request has no Host header"
+                )
+                response = problem(400, detail, instance=scope.get("path"), errors=[field_error(["header", "host"], detail)])
+                await response(scope, receive, send)
+            # the refusal's own plain-text body is dropped
+
+        await super().__call__(scope, receive, sender)
 
 
 PAGE_PREFIXES = ("/plans/", "/jobs/", "/web/")
@@ -241,7 +281,7 @@ def install(app: FastAPI, settings: Settings) -> None:
         )
         log.info("CORS is on for %s", ", ".join(origins))
     hosts = settings.allowed_host_list()
-    app.add_middleware(TrustedHostMiddleware, allowed_hosts=hosts, www_redirect=False)
+    app.add_middleware(TrustedHosts, allowed_hosts=hosts)
     app.add_middleware(SecurityHeadersMiddleware)
     if "*" not in hosts:
         log.info("answering the Host names %s (SPACEARM_ALLOWED_HOSTS)", ", ".join(hosts))

@@ -217,6 +217,10 @@ def test_only_the_bind_address_and_localhost_are_answered(stack: Stack) -> None:
         for host in ("attacker.example", f"attacker.example:{stack.port}", "127.0.0.1.attacker.example"):
             refused = client.delete(f"/v1/robots/{robot_id}", headers={"host": host})
             assert refused.status_code == 400, (host, refused.text)
+            # a problem detail like every other error, not Starlette's plain text
+            assert refused.headers["content-type"] == "application/problem+json", refused.text
+            assert host in refused.json()["detail"] and "SPACEARM_ALLOWED_HOSTS" in refused.json()["detail"]
+            assert refused.json()["errors"][0]["field"] == "header.host"
             assert client.get("/v1/robots/table1", headers={"host": host}).status_code == 400
         assert client.get(f"/v1/robots/{robot_id}").status_code == 200  # still there
         for host in (f"127.0.0.1:{stack.port}", f"localhost:{stack.port}", "localhost"):
