@@ -167,13 +167,11 @@ def install(app: FastAPI) -> None:
         # under the body by its engine name.
         loc = getattr(exc, API_LOCATION, None) or ["body", *field_path(exc.field)]
         item = field_error(loc, exc.reason)
-        shown = (
-            item["field"].split(".", 1)[1] if loc[0] in ("body", "query", "path", "header") and len(loc) > 1 else item["field"]
-        )
         element = getattr(exc, "element", None)  # a URDF error names the element at fault
         text = f"{element}: {exc.reason}" if element else exc.reason
         extra = {"element": element} if element else {}
-        return problem(422, f"{shown}: {text}", instance=request.url.path, errors=[item], **extra)
+        # the detail names the field as errors[].field does, and as a schema's refusal does
+        return problem(422, f"{item['field']}: {text}", instance=request.url.path, errors=[item], **extra)
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:

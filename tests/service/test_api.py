@@ -184,8 +184,12 @@ def test_plan_variants_and_errors(client: httpx.Client) -> None:
     assert bad["errors"][0]["field"] == "body.task.q0_deg"
     bad = _problem(client.post("/v1/plans", json={"robot_id": "table1", "task": {**PAPER_TASK, "ramp_time_s": 9.0}}), 422)
     assert bad["errors"][0]["field"] == "body.task.ramp_time_s"
+    refused_by_the_engine = bad
     bad = _problem(client.post("/v1/plans", json={"robot_id": "table1", "task": {**PAPER_TASK, "profile": "cubic"}}), 422)
     assert bad["errors"][0]["field"] == "body.task.profile"
+    # the engine's refusal and the schema's name the field alike: detail starts with errors[].field
+    for problem in (refused_by_the_engine, bad):
+        assert problem["detail"].startswith(problem["errors"][0]["field"] + ": "), problem
     _problem(client.post("/v1/plans", json={"task": PAPER_TASK}), 422)
 
 
