@@ -146,7 +146,29 @@ class RobotParams(Input):
     )
 
     def to_engine(self) -> RobotModel:
-        return model_of(self.model_dump(exclude_none=True))
+        model = model_of(self.model_dump(exclude_none=True))
+        distinct_names(model)
+        return model
+
+
+def distinct_names(model: RobotModel) -> None:
+    """Refuse a new parameter set whose frames (the base, the links, the end effector) or joints
+    share a name, as URDF does: the names tell links apart in reports (a clearance pair, a joint's
+    speed) and in the URDF export, which would have to rename one. Raises a ``ParameterError`` at
+    the second of two (default names count: an unnamed ``links[1]`` is ``link2``). Robots stored
+    before this check are loaded as they are (:func:`model_of` does not call it)."""
+    frames = [("base.name", model.base.name)]
+    frames += [(f"links[{i}].name", link.name) for i, link in enumerate(model.links)]
+    frames.append(("end_effector.name", model.end_effector_name))
+    joints = [(f"links[{i}].joint_name", name) for i, name in enumerate(model.joint_names)]
+    for named in (frames, joints):
+        first: dict[str, str] = {}
+        for field, name in named:
+            if name in first:
+                raise ParameterError(
+                    field, f"{name!r} also names {first[name]}: every frame and every joint needs a name of its own"
+                )
+            first[name] = field
 
 
 class RobotUrdfIn(Input):

@@ -135,6 +135,49 @@ def test_a_stored_robot_that_cannot_be_shown_is_its_own_error(stack: Stack, tabl
         assert client.get(f"/v1/robots/{broken}").status_code == 404
 
 
+def test_frames_and_joints_need_names_of_their_own(stack: Stack, table1: dict[str, Any]) -> None:
+    """Two links of one name made a clearance pair or a joint's speed ambiguous, and the URDF
+    export renamed one: a new parameter set (stored or inline) whose frames or joints share a
+    name is a 422 at the second of them, default names included. A robot stored with such names
+    before the check still loads (written here by sqlite3)."""
+    unnamed = copy.deepcopy(table1)
+    for link in unnamed["links"]:
+        link.pop("name", None)
+        link.pop("joint_name", None)
+    cases = [
+        (_set(unnamed, ("links", 3, "name"), "link2"), "body.links[3].name", "'link2' also names links[1].name"),
+        (_set(unnamed, ("links", 0, "name"), "link2"), "body.links[1].name", "'link2' also names links[0].name"),
+        (_set(unnamed, ("links", 5, "name"), "base"), "body.links[5].name", "'base' also names base.name"),
+        (_set(unnamed, ("links", 2, "joint_name"), "joint1"), "body.links[2].joint_name", "'joint1' also names links[0]"),
+        (_set(_set(unnamed, ("links", 0, "name"), "boom"), ("links", 4, "name"), "boom"), "body.links[4].name", "'boom'"),
+    ]
+    with stack.client() as client:
+        before = _robot_ids(client)
+        for params, field, said in cases:
+            for response, where in (
+                (client.post("/v1/robots", json={**params, "name": "shared names"}), field),
+                (
+                    client.post("/v1/plans", json={"robot": {**params, "name": "shared names"}, "task": PAPER_TASK}),
+                    field.replace("body.", "body.robot.", 1),
+                ),
+            ):
+                problem = _problem(response, 422)
+                assert [e["field"] for e in problem["errors"]] == [where], problem
+                assert said in problem["detail"], problem
+        assert _robot_ids(client) == before
+        r = client.post("/v1/robots", json={**unnamed, "name": "default names"})
+        assert r.status_code == 201, r.text
+        stored = r.json()["id"]
+        with sqlite3.connect(stack.db_path) as con:
+            (text,) = con.execute("SELECT parameters FROM robots WHERE id = ?", (stored,)).fetchone()
+            shared = _set(_set(json.loads(text), ("links", 0, "name"), "boom"), ("links", 1, "name"), "boom")
+            con.execute("UPDATE robots SET parameters = ? WHERE id = ?", (json.dumps(shared), stored))
+        r = client.get(f"/v1/robots/{stored}")
+        assert r.status_code == 200 and [link["name"] for link in r.json()["parameters"]["links"]][:2] == ["boom", "boom"]
+        plan = client.post("/v1/plans", json={"robot_id": stored, "task": PAPER_TASK, "replay": False})
+        assert plan.status_code == 201, plan.text
+
+
 def test_denormal_masses_make_the_jacobian_a_422_not_a_500(stack: Stack, table1: dict[str, Any]) -> None:
     """Defect 8: masses that pass validation but vanish in double precision gave NaN in the GJM,
     which failed the response (500); plans on such a robot already failed with a message."""
