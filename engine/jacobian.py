@@ -63,7 +63,7 @@ class GJMResult:
     singular_values: FloatArray  # (min(6, n),) descending
     determinant: float | None  # det J_g when n == 6, else None
     manipulability: float  # product of singular values (= sqrt(det(J_g J_g^T)) for n >= 6)
-    condition_number: float  # sigma_max / sigma_min (inf at a singularity)
+    condition_number: float  # sigma_max / sigma_min (inf where sigma_min <= max(6, n) eps sigma_max)
     ee_position: FloatArray  # (3,) m, the end-effector pose at the same state
     ee_attitude: FloatArray  # (3, 3)
     success: bool = True
@@ -88,7 +88,10 @@ def generalized_jacobian(model: RobotModel, state: State) -> GJMResult:
     svd_kernels.svd_many(J_all, U, sv, V)
     s = sv[0]
     determinant = float(linalg.det6(J, np.empty((6, 6)))) if n == 6 else None
-    cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    # singular to working precision (numpy's matrix_rank tolerance): the ratio of a rounding residue
+    # to sigma_max (6.5e15 for arm7 stretched out) would read as a condition number
+    singular = not s[-1] > s[0] * max(6, n) * np.finfo(float).eps
+    cond = float("inf") if singular else float(s[0] / s[-1])
     finite = bool(np.all(np.isfinite(J)) and np.all(np.isfinite(s)) and np.isfinite(np.prod(s)))
     return GJMResult(
         J_g=J,

@@ -9,6 +9,7 @@ from engine import RobotModel, State, generalized_jacobian, make_inverse, plan
 from engine.bounds import MAX_MASS_KG
 from engine.jacobian import fixed_base_jacobian_batch, gjm_batch
 from engine.kinematics import kinematics_about_com, kinematics_batch, state_kinematics, system_com
+from engine.model import urdf_robot
 from engine.spatial import exp_so3, log_so3
 
 
@@ -88,6 +89,21 @@ def test_gjm_result_fields(robot):
     np.testing.assert_allclose(abs(g.determinant), np.prod(sv), rtol=1e-10)
     np.testing.assert_allclose(g.manipulability, np.prod(sv))
     assert g.success
+
+
+def test_a_gjm_singular_to_working_precision_has_no_condition_number():
+    """arm7 at zero angles (stretched out) is singular: its smallest singular value is a
+    rounding residue, which numpy's rank (to max(m, n) eps sigma_max) does not count; the
+    condition number is then infinite (null in the API), not sigma_max over the residue. A
+    state merely near the singularity keeps its finite one."""
+    arm7 = urdf_robot("arm7")
+    stretched = generalized_jacobian(arm7, State(np.zeros(7)))
+    assert np.linalg.matrix_rank(stretched.J_g) < 6
+    assert stretched.condition_number == np.inf
+    near = generalized_jacobian(arm7, State(np.full(7, 1e-4)))
+    assert np.linalg.matrix_rank(near.J_g) == 6
+    sv = np.linalg.svd(near.J_g, compute_uv=False)
+    assert near.condition_number == pytest.approx(sv[0] / sv[-1], rel=1e-6)
 
 
 def test_non_square_gjm_has_no_determinant(rng):
