@@ -32,8 +32,7 @@ from engine.metrics import AGGREGATIONS, ATTITUDE_TERMS, DET_UNITS, SINGULAR_VAL
 from engine.model import JOINT_TYPES, RobotModel
 from engine.paths import PROFILES
 from engine.redundancy import SECONDARY_OBJECTIVES
-from engine.spatial import matrix_to_quaternion, rpy_spacedyn_to_matrix
-from engine.trajectory import PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_RPY, TRACKS
+from engine.trajectory import PAPER_Q0_DEG, PAPER_TARGET_POSITION, PAPER_TARGET_QUATERNION, TRACKS
 from engine.tuning import TASK_AGGREGATIONS
 
 # Every number in a request is bounded (an overflow inside the engine is ruled out by the schema);
@@ -127,12 +126,11 @@ Weights = Annotated[
     AfterValidator(_weights),
 ]
 
-PAPER_TARGET_QUATERNION = [round(float(x), 12) for x in matrix_to_quaternion(rpy_spacedyn_to_matrix(PAPER_TARGET_RPY))]
 
 PAPER_TASK_EXAMPLE: dict[str, Any] = {
     "q0_deg": list(PAPER_Q0_DEG),
     "target_position_m": list(PAPER_TARGET_POSITION),
-    "target_attitude_quaternion": PAPER_TARGET_QUATERNION,
+    "target_attitude_quaternion": list(PAPER_TARGET_QUATERNION),
     "duration_s": 15.0,
     "ramp_time_s": 1.5,
     "dt_s": 0.25,

@@ -4,6 +4,10 @@ readiness only once they are in (or says why they failed)."""
 from __future__ import annotations
 
 import gc
+import json
+import os
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -115,3 +119,29 @@ def test_the_start_up_rehearsal_and_route_visits_run_clean(tmp_path: Path, caplo
     messages = [record.getMessage() for record in caplog.records]
     assert any("engine kernels ready" in m for m in messages), messages
     assert not [m for m in messages if "rehearsal" in m], messages
+
+
+NO_KERNEL_SCRIPT = """
+import json, sys
+import service.app, service.worker, service.run
+from service.cli import main
+sys.argv = ["spacearm", "migrate"]
+try:
+    main()
+except SystemExit as exc:
+    assert not exc.code, exc.code
+from engine.kernels.jit import KERNELS
+from engine.warmup import kernel_name
+print(json.dumps([kernel_name(k) for k in KERNELS if k.overloads]))
+"""
+
+
+def test_importing_the_service_and_migrating_load_no_kernel(tmp_path: Path) -> None:
+    """At a first start, ``spacearm run``'s API and worker import the service while ``spacearm
+    compile`` fills the kernel cache, and the migration runs beside it: a kernel called at import
+    (the API's example quaternion was one) was compiled by each of the three at once, about 1.5 s
+    of CPU each taken from the compilation. Nothing of it loads or compiles a kernel now."""
+    env = {**os.environ, "SPACEARM_DATABASE_URL": f"sqlite:///{tmp_path / 'first.db'}"}
+    done = subprocess.run([sys.executable, "-c", NO_KERNEL_SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == []
