@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import os
 import signal
 import sys
 from importlib.metadata import PackageNotFoundError, version
@@ -208,6 +210,7 @@ def compile_command(force: bool, say: Say) -> int:
     from engine.kernels.cache import compiled
     from engine.kernels.jit import CACHE_DIR
     from engine.warmup import PARTS, CompileError, Progress, compile_kernels
+    from service.run import PROGRESS_FD
 
     if compiled() and not force:
         say(f"engine kernels: compiled already for this CPU (cache {CACHE_DIR})", False)
@@ -218,9 +221,17 @@ def compile_command(force: bool, say: Say) -> int:
         False,
     )
 
+    told = os.environ.pop(PROGRESS_FD, "")  # spacearm run's pipe: a line as each part ends
+    parts_done = 0
+
     def progress(p: Progress) -> None:
+        nonlocal parts_done
         running = f"; compiling: {', '.join(p.running)}" if p.running else ""
         say(f"compiling kernels: {p.done} of {p.total} parts done after {p.seconds:.0f} s{running}", False)
+        if told.isdigit() and p.done > parts_done:
+            with contextlib.suppress(OSError):  # the launcher is gone: nobody to tell
+                os.write(int(told), f"{p.done} of {p.total}\n".encode())
+        parts_done = p.done
 
     try:
         seconds = compile_kernels(progress)

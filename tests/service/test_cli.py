@@ -394,6 +394,32 @@ def test_compile_says_when_the_kernels_are_compiled_and_reports_progress() -> No
     assert re.fullmatch(r"engine kernels compiled in \d+ s", messages[-1]), messages
 
 
+def test_the_first_part_compiled_lets_the_children_start(tmp_path: Path) -> None:
+    """``spacearm run`` on a machine with no core to spare starts the API and the workers (their
+    imports) once the first of ``spacearm compile``'s parts has ended, which the compilation says
+    through a pipe (:data:`service.run.PROGRESS_FD`) and :func:`service.run.prepare_in_children`
+    passes on, once. Here the cache is the suite's without its marker, so the parts load the
+    kernels instead of compiling them."""
+    from engine.kernels.cache import marker_path, source_hash
+    from engine.kernels.jit import CACHE_DIR
+    from engine.warmup import PARTS
+    from service.run import COMPILE_PARTS, prepare_in_children
+
+    assert len(PARTS) == COMPILE_PARTS
+    cache = tmp_path / "numba" / f"spacearm-{source_hash()}"
+    shutil.copytree(CACHE_DIR, cache)
+    marker_path(cache).unlink()
+    env = {
+        **os.environ,
+        "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+        "SPACEARM_DATABASE_URL": f"sqlite:///{tmp_path / 'first.db'}",
+    }
+    told: list[bool] = []
+    assert prepare_in_children(env, threading.Event(), compile=True, on_first_part=lambda: told.append(True)) == 0
+    assert told == [True]
+    assert marker_path(cache).exists()
+
+
 def test_serve_freezes_the_start_up_heap(monkeypatch: pytest.MonkeyPatch) -> None:
     """``spacearm serve`` is a process of its own: it turns the cyclic garbage collector off before
     its imports and asks the app to freeze its start-up objects and turn the collector back on
