@@ -113,36 +113,44 @@ def prepare_in_children(
     :func:`kernels_compiled`), ``spacearm compile`` in child processes side by side (sharing our
     stdout/stderr): the database at head and the kernels in their cache before the API and the
     workers go on, which then load the kernels in a second instead of each compiling them.
-    ``on_first_part`` is called once, when the first of the compilation's parts ends (it says so
-    through a pipe, :data:`PROGRESS_FD`), and so a core is free again. Returns 0, the exit code of
+    ``on_first_part`` is called (at most once) when the first of the compilation's parts ends (it
+    says so through a pipe, :data:`PROGRESS_FD`), and so a core is free again. Returns 0, the exit code of
     the first that failed (the other is stopped), or 130 if ``stop`` was set."""
     base = [sys.executable, "-P", "-m", "service"]
     # The migration seeds the preset robots a database lacks (a new one: all), so that the API and
     # the workers, which would otherwise, do not build the URDF presets: their parser and trimesh
     # stay in a process, about 60 MiB. It imports the engine only then.
-    children = [subprocess.Popen([*base, "migrate", *(["--verbose"] if verbose else [])], env=env, preexec_fn=_die_with_parent)]
+    children: list[subprocess.Popen[bytes]] = []
     progress = -1
-    if (not kernels_compiled()) if compile is None else compile:
-        progress, written = os.pipe()
-        try:
-            compiling = {**env, PROGRESS_FD: str(written)}
-            command = [*base, "compile"]
-            children.append(subprocess.Popen(command, env=compiling, preexec_fn=_die_with_parent, pass_fds=(written,)))
-        finally:
-            os.close(written)
+
+    def told() -> None:  # the compilation's first line (or its end: the pipe closed), once
+        nonlocal progress
+        if progress >= 0 and select.select([progress], [], [], 0)[0]:
+            said = os.read(progress, 64)
+            os.close(progress)
+            progress = -1
+            if said and on_first_part is not None:
+                on_first_part()
+
     try:
+        children.append(
+            subprocess.Popen([*base, "migrate", *(["--verbose"] if verbose else [])], env=env, preexec_fn=_die_with_parent)
+        )
+        if (not kernels_compiled()) if compile is None else compile:
+            progress, written = os.pipe()
+            try:
+                compiling = {**env, PROGRESS_FD: str(written)}
+                command = [*base, "compile"]
+                children.append(subprocess.Popen(command, env=compiling, preexec_fn=_die_with_parent, pass_fds=(written,)))
+            finally:
+                os.close(written)
         while not stop.is_set():
             codes = [child.poll() for child in children]
+            told()
             failed = [code for code in codes if code]
             if failed or all(code == 0 for code in codes):
                 return failed[0] if failed else 0
-            if progress >= 0 and select.select([progress], [], [], 0.05)[0]:
-                if os.read(progress, 64) and on_first_part is not None:
-                    on_first_part()
-                os.close(progress)
-                progress = -1
-            else:
-                stop.wait(0.05)
+            stop.wait(0.05)
         return 130
     finally:
         if progress >= 0:

@@ -686,13 +686,15 @@ def _penetration(sa, sb, vertices, buf, count, witness):
                 horizon[n_edges, 2] = across
                 n_edges += 1
         added = max(n_edges - removed, 0)
-        if n_edges < 3 or n_faces + added > EPA_MAX_FACES:
-            break  # rounding: the point sees too little; or no room: the nearest face so far stands
-        closed = True
+        closed = n_edges >= 3
         for m in range(n_edges):
             closed = closed and horizon[m, 1] == horizon[(m + 1) % n_edges, 0]
-        if not closed:
-            break  # the region is not a disc (rounding): the polytope no longer holds
+        if not closed or n_faces + added > EPA_MAX_FACES:
+            # rounding: the point sees too little, or a region that is not a disc; or no room: the
+            # nearest face so far stands, on the polytope as it was
+            for m in range(removed):
+                faces[horizon[m, 4], 3] = 1
+            break
         n_points += 1
         grown = True
         for m in range(n_edges):  # the new faces in the slots of those gone, then new slots

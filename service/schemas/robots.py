@@ -146,20 +146,28 @@ class RobotParams(Input):
     )
 
     def to_engine(self) -> RobotModel:
-        model = model_of(self.model_dump(exclude_none=True))
-        distinct_names(model)
-        return model
+        return model_of(self.model_dump(exclude_none=True))
 
 
 def distinct_names(model: RobotModel) -> None:
-    """Refuse a new parameter set whose frames (the base, the links, the end effector) or joints
-    share a name, as URDF does: the names tell links apart in reports (a clearance pair, a joint's
-    speed) and in the URDF export, which would have to rename one. Raises a ``ParameterError`` at
-    the second of two (default names count: an unnamed ``links[1]`` is ``link2``). Robots stored
-    before this check are loaded as they are (:func:`model_of` does not call it)."""
+    """Refuse a new parameter set (a request's: stored robots and queued jobs load as they are)
+    whose frames (the base, the links, the end effector) or joints share a name, as URDF does: the
+    names tell links apart in reports (a clearance pair, a joint's speed) and in the URDF export,
+    which would have to rename one. The end effector may bear its link's name (the URDF import
+    names it so when the last moving link is the leaf). Raises a ``ParameterError`` at the second
+    of two, a default name first (an unnamed ``links[1]`` is ``link2``, the end effector
+    ``end_effector``), so that the error names a field the request has."""
+    ee = model.end_effector_name
     frames = [("base.name", model.base.name)]
-    frames += [(f"links[{i}].name", link.name) for i, link in enumerate(model.links)]
-    frames.append(("end_effector.name", model.end_effector_name))
+    if ee == "end_effector":
+        frames.append(("end_effector.name", ee))
+    frames += [
+        (f"links[{i}].name", link.name)
+        for i, link in enumerate(model.links)
+        if not (i == len(model.links) - 1 and link.name == ee)
+    ]
+    if ee != "end_effector":
+        frames.append(("end_effector.name", ee))
     joints = [(f"links[{i}].joint_name", name) for i, name in enumerate(model.joint_names)]
     for named in (frames, joints):
         first: dict[str, str] = {}

@@ -28,7 +28,16 @@ from service.infra.quota import check_quota
 from service.infra.revision import missing_presets
 from service.models import Robot, new_id, utcnow
 from service.schemas.common import located
-from service.schemas.robots import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams, RobotUrdfIn, model_of
+from service.schemas.robots import (
+    JacobianOut,
+    JacobianRequest,
+    RobotList,
+    RobotOut,
+    RobotParams,
+    RobotUrdfIn,
+    distinct_names,
+    model_of,
+)
 from service.usecases import meshes, rows
 
 PRESET_ROBOT_ID = "table1"
@@ -95,12 +104,17 @@ def load(session: Session, robot_id: str) -> Robot:
     return rows.load(session, Robot, robot_id, "robot")
 
 
-def resolve(session: Session, robot_id: str | None, inline: RobotParams | None) -> tuple[str | None, RobotModel]:
-    """The robot of a request: its inline parameters (errors at ``body.robot...``) or the stored
-    robot ``robot_id``."""
+def resolve(
+    session: Session, robot_id: str | None, inline: RobotParams | None, *, new: bool = True
+) -> tuple[str | None, RobotModel]:
+    """The robot of a request: its inline parameters (errors at ``body.robot...``; ``new``: a
+    request's, whose names must be distinct, not a queued job's) or the stored robot ``robot_id``."""
     if inline is not None:
         with located(inline, "body", "robot"):
-            return None, inline.to_engine()
+            model = inline.to_engine()
+            if new:
+                distinct_names(model)
+            return None, model
     if robot_id is None:
         raise ApiValidationError(
             "give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
@@ -156,6 +170,8 @@ def create(session: Session, quota_bytes: int | None, body: RobotParams | RobotU
     not be shown is never stored."""
     with located(body, "body"), meshes.hulls(session):  # a URDF may name stored meshes
         model = body.to_engine()
+        if isinstance(body, RobotParams):
+            distinct_names(model)
     parameters = jsonio.clean(model.to_dict())
     check_quota(session, quota_bytes, len(jsonio.dumps(parameters)))
     robot = Robot(id=new_id(), name=model.name, parameters=parameters, preset=False, created_at=utcnow())

@@ -78,7 +78,7 @@ def check(model: RobotModel, body: TuningJobRequest) -> list[TuningProblem]:
     evaluations = planned_evaluations(body)
     if evaluations > MAX_PLAN_EVALUATIONS:
         msg = f"population * (generations + 1) * tasks{twice} = {evaluations} plan evaluations, at most {MAX_PLAN_EVALUATIONS}"
-        raise ApiValidationError(f"ga: {msg}", [{"loc": ["body", "ga"], "msg": msg}])
+        raise ApiValidationError(f"body.ga: {msg}", [{"loc": ["body", "ga"], "msg": msg}])
     problems = body.problems(model)
     work = planned_joint_steps(body, problems, model)  # plan_steps() counts the samples
     if work > MAX_JOB_JOINT_STEPS:
@@ -89,7 +89,7 @@ def check(model: RobotModel, body: TuningJobRequest) -> list[TuningProblem]:
             f"{work * 1e-6 / 3600:.1g} h of one core): use fewer generations, a smaller population, fewer or "
             "shorter tasks, or a coarser dt_s"
         )
-        raise ApiValidationError(f"{where[-1]}: {msg}", [{"loc": where, "msg": msg}])
+        raise ApiValidationError(f"{'.'.join(where)}: {msg}", [{"loc": where, "msg": msg}])
     return problems
 
 

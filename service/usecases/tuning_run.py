@@ -110,7 +110,7 @@ class _Job:
             if job is None:
                 return None
             body = TuningJobRequest.model_validate(dict(job.request))
-            _, model = robots.resolve(s, body.robot_id, body.robot)
+            _, model = robots.resolve(s, body.robot_id, body.robot, new=False)  # as queued, even by an older version
             s.execute(delete(JobGeneration).where(JobGeneration.job_id == job.id, JobGeneration.attempt == self.claim.attempts))
             with meshes.hulls(s):
                 return body, body.problems(model)

@@ -150,6 +150,13 @@ def test_frames_and_joints_need_names_of_their_own(stack: Stack, table1: dict[st
         (_set(unnamed, ("links", 5, "name"), "base"), "body.links[5].name", "'base' also names base.name"),
         (_set(unnamed, ("links", 2, "joint_name"), "joint1"), "body.links[2].joint_name", "'joint1' also names links[0]"),
         (_set(_set(unnamed, ("links", 0, "name"), "boom"), ("links", 4, "name"), "boom"), "body.links[4].name", "'boom'"),
+        # the default end-effector name is the one a link takes: the error names the link
+        (_set(unnamed, ("links", 2, "name"), "end_effector"), "body.links[2].name", "also names end_effector.name"),
+        (
+            _set(_set(unnamed, ("links", 2, "name"), "tool"), ("end_effector", "name"), "tool"),
+            "body.end_effector.name",
+            "'tool' also names links[2].name",
+        ),
     ]
     with stack.client() as client:
         before = _robot_ids(client)
@@ -165,6 +172,11 @@ def test_frames_and_joints_need_names_of_their_own(stack: Stack, table1: dict[st
                 assert [e["field"] for e in problem["errors"]] == [where], problem
                 assert said in problem["detail"], problem
         assert _robot_ids(client) == before
+        # the end effector may bear its own link's name (the URDF import names it so)
+        on_its_link = _set(_set(unnamed, ("links", 5, "name"), "flange"), ("end_effector", "name"), "flange")
+        r = client.post("/v1/robots", json={**on_its_link, "name": "end effector on its link"})
+        assert r.status_code == 201, r.text
+        assert client.post("/v1/robots", json={**r.json()["parameters"], "name": "posted back"}).status_code == 201
         r = client.post("/v1/robots", json={**unnamed, "name": "default names"})
         assert r.status_code == 201, r.text
         stored = r.json()["id"]
