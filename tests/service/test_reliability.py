@@ -686,7 +686,8 @@ def test_cancel_takes_effect_inside_a_long_generation(client: httpx.Client, stac
 
 def test_job_cost_is_capped_in_joint_steps(client: httpx.Client) -> None:
     robot = named(preset_robot(client), "twelve joints")
-    robot["links"] = robot["links"] * 2
+    twice = robot["links"] * 2  # each link with a name of its own
+    robot["links"] = [{**link, "name": f"link{i + 1}", "joint_name": f"joint{i + 1}"} for i, link in enumerate(twice)]
     task = {**PAPER_TASK, "q0_deg": [10.0] * 12, "duration_s": 200.0, "dt_s": 0.01}  # 20,000 steps
     # 50 generations, with DLS; the GA alone (the refinement's plans would add to the sum)
     body = {"robot": robot, "tasks": [task], "method": "adaptive", "ga": {"population": 1000}, "refine": False}
