@@ -54,7 +54,7 @@ async def create_mesh(
     fmt = format or meshes.MEDIA_TYPES.get(media)
     if fmt is None:
         raise ApiValidationError(
-            "format: give ?format=stl or ?format=obj (or Content-Type model/stl or model/obj)",
+            "query.format: give ?format=stl or ?format=obj (or Content-Type model/stl or model/obj)",
             [{"loc": ["query", "format"], "msg": "the file's format is needed"}],
         )
     content = await request.body()

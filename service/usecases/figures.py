@@ -93,7 +93,7 @@ def compare_figure(db: Database, name: str, ids: str, fmt: str, dpi: float | Non
     plan_ids = list(dict.fromkeys(i.strip() for i in ids.split(",") if i.strip()))
     if not plan_ids or len(plan_ids) > MAX_COMPARE:
         raise ApiValidationError(
-            f"ids: give 1 to {MAX_COMPARE} plan ids",
+            f"query.ids: give 1 to {MAX_COMPARE} plan ids",
             [{"loc": ["query", "ids"], "msg": f"1 to {MAX_COMPARE} comma-separated ids"}],
         )
 

@@ -19,7 +19,7 @@ from service.infra.quota import check_quota
 from service.infra.settings import Settings
 from service.infra.storage import pack_trajectory, unpack_trajectory
 from service.models import Landscape, TuningJob
-from service.schemas.common import located
+from service.schemas.common import dotted_path, located
 from service.schemas.landscapes import LandscapeRequest
 from service.usecases import meshes, robots, rows
 
@@ -29,8 +29,8 @@ MAX_LANDSCAPE_JOINT_STEPS = 2e7
 
 
 def _invalid(loc: list[Any], msg: str) -> ApiValidationError:
-    where = ".".join(str(p) for p in loc[1:]) or "body"  # the body as a whole: "body: ..." (it read ": ...")
-    return ApiValidationError(f"{where}: {msg}", [{"loc": loc, "msg": msg}])
+    """A 422 at ``loc`` whose detail starts with its path, as ``errors[].field`` says it."""
+    return ApiValidationError(f"{dotted_path(loc)}: {msg}", [{"loc": loc, "msg": msg}])
 
 
 def _marks(session: Session, body: LandscapeRequest) -> dict[str, Any]:

@@ -117,7 +117,7 @@ def resolve(
             return None, model
     if robot_id is None:
         raise ApiValidationError(
-            "give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
+            "body.robot_id: give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
             [{"loc": ["body", "robot_id"], "msg": "robot_id or robot is required"}],
         )
     try:
@@ -125,7 +125,7 @@ def resolve(
         _STORED.put(robot_id, model)
         return robot_id, model
     except UnusableRobotError as exc:
-        raise ApiValidationError(exc.detail, [{"loc": ["body", "robot_id"], "msg": exc.detail}]) from None
+        raise ApiValidationError(f"body.robot_id: {exc.detail}", [{"loc": ["body", "robot_id"], "msg": exc.detail}]) from None
 
 
 def stored_model(robot: Robot) -> RobotModel:
@@ -205,7 +205,7 @@ def jacobian(session: Session, robot_id: str, body: JacobianRequest) -> Jacobian
     with located(body, "body"):
         gjm = generalized_jacobian(model, body.to_engine(model))
     if not gjm.success:
-        msg = f"robot {robot_id!r}: {gjm.message}"
+        msg = f"path.robot_id: robot {robot_id!r}: {gjm.message}"
         raise ApiValidationError(msg, [{"loc": ["path", "robot_id"], "msg": gjm.message}])
     return JacobianOut.from_engine(gjm)
 

@@ -212,7 +212,7 @@ def _replayed(session: Session, job: TuningJob, key: str, digest: str) -> Tuning
     """The answer to a retry: the first job, unless the key came with another body (422)."""
     if job.idempotency_fingerprint is not None and job.idempotency_fingerprint != digest:
         msg = f"the Idempotency-Key {key!r} was used for a different request body (job {job.id}); use a new key"
-        raise ApiValidationError(msg, [{"loc": ["header", "Idempotency-Key"], "msg": msg}])
+        raise ApiValidationError(f"header.Idempotency-Key: {msg}", [{"loc": ["header", "Idempotency-Key"], "msg": msg}])
     return view(job, history(session, [job])[job.id])
 
 

@@ -187,10 +187,20 @@ def test_plan_variants_and_errors(client: httpx.Client) -> None:
     refused_by_the_engine = bad
     bad = _problem(client.post("/v1/plans", json={"robot_id": "table1", "task": {**PAPER_TASK, "profile": "cubic"}}), 422)
     assert bad["errors"][0]["field"] == "body.task.profile"
-    # the engine's refusal and the schema's name the field alike: detail starts with errors[].field
-    for problem in (refused_by_the_engine, bad):
+    no_robot = _problem(client.post("/v1/plans", json={"task": PAPER_TASK}), 422)
+    no_sections = _problem(client.get(f"/v1/plans/{plain['id']}", params={"fields": "summary,nonsense"}), 422)
+    no_ids = _problem(client.get("/v1/plans/compare/figures/tracking-errors", params={"ids": ","}), 422)
+    no_format = _problem(client.post("/v1/meshes", content=b"solid x", headers={"content-type": "text/plain"}), 422)
+    # the engine's refusal, the schema's and the service's own name the field alike: detail starts
+    # with errors[].field
+    for problem in (refused_by_the_engine, bad, no_robot, no_sections, no_ids, no_format):
         assert problem["detail"].startswith(problem["errors"][0]["field"] + ": "), problem
-    _problem(client.post("/v1/plans", json={"task": PAPER_TASK}), 422)
+    assert [p["errors"][0]["field"] for p in (no_robot, no_sections, no_ids, no_format)] == [
+        "body",
+        "query.fields",
+        "query.ids",
+        "query.format",
+    ]
 
 
 def test_long_plan_does_not_block_other_requests(client: httpx.Client, stack: Stack) -> None:
