@@ -673,7 +673,8 @@ def _to_dict(
         tool[:3, :3] = R
         tool[:3, 3] = p
         T_ee = T_ee @ tool
-        label = f"{ee_name}_tool"
+        # a name of its own: a link of the file may be called so already
+        label = _unique(f"{ee_name}_tool", {link for names in links_of.values() for link in names})
     params_links[-1]["b"] = (U @ (T_ee[:3, 3] - prev_com)).tolist()
     assert b_prev is not None
     base: dict[str, Any] = {"name": root, "mass": base_mass, "inertia": base_inertia.tolist(), "b": b_prev.tolist()}

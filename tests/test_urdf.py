@@ -522,3 +522,15 @@ def test_only_a_cylinder_with_a_sphere_of_its_radius_on_each_end_is_a_capsule():
     }
     for name, (geometries, types) in cases.items():
         assert [s.type for s in link_with(geometries).links[2].collision_shapes] == types, name
+
+
+def test_a_tool_frame_gets_a_name_no_link_of_the_file_has():
+    """With a tool offset the end effector is named ``<link>_tool``; a link of the file already
+    called so makes it ``<link>_tool_2``, so that no two frames of the robot share a name (the API
+    refuses a parameter set whose frames do, and the export would rename one)."""
+    text = table1_robot().to_urdf().replace('"link3"', '"link6_tool"')
+    model = RobotModel.from_urdf(text, end_effector_link="link6", tool_offset=([0.1, 0.0, 0.0], np.eye(3)))
+    names = [model.base.name, *(link.name for link in model.links)]
+    assert "link6_tool" in names and model.end_effector_name == "link6_tool_2"
+    plain = RobotModel.from_urdf(table1_robot().to_urdf(), end_effector_link="link6", tool_offset=([0.1, 0.0, 0.0], np.eye(3)))
+    assert plain.end_effector_name == "link6_tool"

@@ -149,34 +149,37 @@ class RobotParams(Input):
         return model_of(self.model_dump(exclude_none=True))
 
 
-def distinct_names(model: RobotModel) -> None:
+def distinct_names(model: RobotModel, given: RobotParams) -> None:
     """Refuse a new parameter set (a request's: stored robots and queued jobs load as they are)
     whose frames (the base, the links, the end effector) or joints share a name, as URDF does: the
     names tell links apart in reports (a clearance pair, a joint's speed) and in the URDF export,
     which would have to rename one. The end effector may bear its link's name (the URDF import
-    names it so when the last moving link is the leaf). Raises a ``ParameterError`` at the second
-    of two, a default name first (an unnamed ``links[1]`` is ``link2``, the end effector
-    ``end_effector``), so that the error names a field the request has."""
+    names it so when the last moving link is the leaf). Default names count (an unnamed
+    ``links[1]`` is ``link2``); the ``ParameterError`` names a field of ``given`` (the request):
+    the second of two, or the given one when the other is a default."""
     ee = model.end_effector_name
-    frames = [("base.name", model.base.name)]
-    if ee == "end_effector":
-        frames.append(("end_effector.name", ee))
+    last = len(model.links) - 1
+    frames = [("base.name", model.base.name, given.base.name is not None)]
     frames += [
-        (f"links[{i}].name", link.name)
+        (f"links[{i}].name", link.name, given.links[i].name is not None)
         for i, link in enumerate(model.links)
-        if not (i == len(model.links) - 1 and link.name == ee)
+        if not (i == last and link.name == ee)
     ]
-    if ee != "end_effector":
-        frames.append(("end_effector.name", ee))
-    joints = [(f"links[{i}].joint_name", name) for i, name in enumerate(model.joint_names)]
+    frames.append(("end_effector.name", ee, given.end_effector is not None and given.end_effector.name is not None))
+    joints = [(f"links[{i}].joint_name", name, given.links[i].joint_name is not None) for i, name in enumerate(model.joint_names)]
     for named in (frames, joints):
-        first: dict[str, str] = {}
-        for field, name in named:
+        first: dict[str, tuple[str, bool]] = {}
+        for field, name, explicit in named:
             if name in first:
+                other, other_explicit = first[name]
+                if explicit or not other_explicit:
+                    raise ParameterError(
+                        field, f"{name!r} also names {other}: every frame and every joint needs a name of its own"
+                    )
                 raise ParameterError(
-                    field, f"{name!r} also names {first[name]}: every frame and every joint needs a name of its own"
+                    other, f"{name!r} is also the default name of {field}: every frame and every joint needs a name of its own"
                 )
-            first[name] = field
+            first[name] = (field, explicit)
 
 
 class RobotUrdfIn(Input):

@@ -113,7 +113,7 @@ def resolve(
         with located(inline, "body", "robot"):
             model = inline.to_engine()
             if new:
-                distinct_names(model)
+                distinct_names(model, inline)
             return None, model
     if robot_id is None:
         raise ApiValidationError(
@@ -171,7 +171,7 @@ def create(session: Session, quota_bytes: int | None, body: RobotParams | RobotU
     with located(body, "body"), meshes.hulls(session):  # a URDF may name stored meshes
         model = body.to_engine()
         if isinstance(body, RobotParams):
-            distinct_names(model)
+            distinct_names(model, body)
     parameters = jsonio.clean(model.to_dict())
     check_quota(session, quota_bytes, len(jsonio.dumps(parameters)))
     robot = Robot(id=new_id(), name=model.name, parameters=parameters, preset=False, created_at=utcnow())

@@ -146,12 +146,15 @@ def test_frames_and_joints_need_names_of_their_own(stack: Stack, table1: dict[st
         link.pop("joint_name", None)
     cases = [
         (_set(unnamed, ("links", 3, "name"), "link2"), "body.links[3].name", "'link2' also names links[1].name"),
-        (_set(unnamed, ("links", 0, "name"), "link2"), "body.links[1].name", "'link2' also names links[0].name"),
+        # a given name that is another field's default: the error names the given one
+        (_set(unnamed, ("links", 0, "name"), "link2"), "body.links[0].name", "'link2' is also the default name of links[1]"),
+        (_set(unnamed, ("links", 1, "name"), "link4"), "body.links[1].name", "'link4' is also the default name of links[3]"),
+        (_set(unnamed, ("links", 0, "joint_name"), "joint3"), "body.links[0].joint_name", "default name of links[2].joint"),
         (_set(unnamed, ("links", 5, "name"), "base"), "body.links[5].name", "'base' also names base.name"),
         (_set(unnamed, ("links", 2, "joint_name"), "joint1"), "body.links[2].joint_name", "'joint1' also names links[0]"),
         (_set(_set(unnamed, ("links", 0, "name"), "boom"), ("links", 4, "name"), "boom"), "body.links[4].name", "'boom'"),
         # the default end-effector name is the one a link takes: the error names the link
-        (_set(unnamed, ("links", 2, "name"), "end_effector"), "body.links[2].name", "also names end_effector.name"),
+        (_set(unnamed, ("links", 2, "name"), "end_effector"), "body.links[2].name", "default name of end_effector.name"),
         (
             _set(_set(unnamed, ("links", 2, "name"), "tool"), ("end_effector", "name"), "tool"),
             "body.end_effector.name",
