@@ -125,6 +125,12 @@ class ApiValidationError(ApiError):
     def __init__(self, detail: str, errors: list[dict[str, Any]]) -> None:
         super().__init__(422, detail, errors=[_error_item(e) for e in errors])
 
+    @classmethod
+    def at(cls, loc: list[Any], msg: str, *, detail: str | None = None) -> ApiValidationError:
+        """The 422 of the field at ``loc`` (``["query", "fields"]``): its ``detail`` (default
+        ``msg``) after the field's path, as ``errors[].field`` names it."""
+        return cls(f"{dotted_path(loc)}: {detail or msg}", [{"loc": loc, "msg": msg}])
+
 
 def _error_item(e: dict[str, Any]) -> dict[str, Any]:
     loc = [p for p in e.get("loc", [])]

@@ -82,7 +82,7 @@ async def stream_start(
         if point is None or point > (attempt, records):
             sent = f"its ids run from {attempt}.1 to {attempt}.{records}" if records else "it has sent no generation yet"
             msg = f"unknown event id {given!r} (ids are <attempt>.<record>): {sent}"
-            raise ApiValidationError(f"{'.'.join(loc)}: {msg}", [{"loc": loc, "msg": msg}])
+            raise ApiValidationError.at(loc, msg)
         yield StreamStart(feed, point)
 
 

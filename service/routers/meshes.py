@@ -53,9 +53,10 @@ async def create_mesh(
     media = (request.headers.get("content-type") or "").split(";")[0].strip().lower()
     fmt = format or meshes.MEDIA_TYPES.get(media)
     if fmt is None:
-        raise ApiValidationError(
-            "query.format: give ?format=stl or ?format=obj (or Content-Type model/stl or model/obj)",
-            [{"loc": ["query", "format"], "msg": "the file's format is needed"}],
+        raise ApiValidationError.at(
+            ["query", "format"],
+            "the file's format is needed",
+            detail="give ?format=stl or ?format=obj (or Content-Type model/stl or model/obj)",
         )
     content = await request.body()
 

@@ -172,13 +172,10 @@ def distinct_names(model: RobotModel, given: RobotParams) -> None:
         for field, name, explicit in named:
             if name in first:
                 other, other_explicit = first[name]
+                rule = "every frame and every joint needs a name of its own"
                 if explicit or not other_explicit:
-                    raise ParameterError(
-                        field, f"{name!r} also names {other}: every frame and every joint needs a name of its own"
-                    )
-                raise ParameterError(
-                    other, f"{name!r} is also the default name of {field}: every frame and every joint needs a name of its own"
-                )
+                    raise ParameterError(field, f"{name!r} also names {other}: {rule}")
+                raise ParameterError(other, f"{name!r} is also the default name of {field}: {rule}")
             first[name] = (field, explicit)
 
 

@@ -92,9 +92,8 @@ def compare_figure(db: Database, name: str, ids: str, fmt: str, dpi: float | Non
     (:func:`service.figures.fig_compare`); the 3D scene needs the robots."""
     plan_ids = list(dict.fromkeys(i.strip() for i in ids.split(",") if i.strip()))
     if not plan_ids or len(plan_ids) > MAX_COMPARE:
-        raise ApiValidationError(
-            f"query.ids: give 1 to {MAX_COMPARE} plan ids",
-            [{"loc": ["query", "ids"], "msg": f"1 to {MAX_COMPARE} comma-separated ids"}],
+        raise ApiValidationError.at(
+            ["query", "ids"], f"1 to {MAX_COMPARE} comma-separated ids", detail=f"give 1 to {MAX_COMPARE} plan ids"
         )
 
     def render() -> bytes:

@@ -19,7 +19,7 @@ from service.infra.quota import check_quota
 from service.infra.settings import Settings
 from service.infra.storage import pack_trajectory, unpack_trajectory
 from service.models import Landscape, TuningJob
-from service.schemas.common import dotted_path, located
+from service.schemas.common import located
 from service.schemas.landscapes import LandscapeRequest
 from service.usecases import meshes, robots, rows
 
@@ -28,21 +28,20 @@ from service.usecases import meshes, robots, rows
 MAX_LANDSCAPE_JOINT_STEPS = 2e7
 
 
-def _invalid(loc: list[Any], msg: str) -> ApiValidationError:
-    """A 422 at ``loc`` whose detail starts with its path, as ``errors[].field`` says it."""
-    return ApiValidationError(f"{dotted_path(loc)}: {msg}", [{"loc": loc, "msg": msg}])
-
-
 def _marks(session: Session, body: LandscapeRequest) -> dict[str, Any]:
     """The GA optimum and tuned DLS of the tuning job named in the request."""
     job = session.get(TuningJob, body.tuning_job_id)
     loc = ["body", "tuning_job_id"]
     if job is None:
-        raise _invalid(loc, f"tuning job {body.tuning_job_id!r} does not exist")
+        raise ApiValidationError.at(loc, f"tuning job {body.tuning_job_id!r} does not exist")
     if job.status != "succeeded" or not job.result:
-        raise _invalid(loc, f"tuning job {body.tuning_job_id!r} is {job.status}: only a succeeded job has an optimum")
+        raise ApiValidationError.at(
+            loc, f"tuning job {body.tuning_job_id!r} is {job.status}: only a succeeded job has an optimum"
+        )
     if job.request.get("method") != body.method:
-        raise _invalid(loc, f"tuning job {body.tuning_job_id!r} tuned {job.request.get('method')}, not {body.method}")
+        raise ApiValidationError.at(
+            loc, f"tuning job {body.tuning_job_id!r} tuned {job.request.get('method')}, not {body.method}"
+        )
     baseline = job.result.get("dls_baseline") or {}
     return {
         "tuning_job_id": job.id,
@@ -93,7 +92,7 @@ def create(db: Database, settings: Settings, body: LandscapeRequest) -> tuple[st
                 tasks.append(task.to_engine(model))
     work = x_values.size * y_values.size * sum(t.n_steps + 1 for t in tasks) * model.n_joints
     if work > MAX_LANDSCAPE_JOINT_STEPS:
-        raise _invalid(
+        raise ApiValidationError.at(
             ["body"],
             f"the grid is {work:.3g} joint-steps (cells x tasks' plan-steps x joints), more than "
             f"{MAX_LANDSCAPE_JOINT_STEPS:.2g}: use fewer steps per axis, shorter tasks or a coarser dt_s",

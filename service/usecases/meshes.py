@@ -33,7 +33,7 @@ MAX_MESH_BYTES = 512 * 1024
 
 
 def _invalid(reason: str, where: str = "body") -> ApiValidationError:
-    return ApiValidationError(f"{where}: {reason}", [{"loc": [where], "msg": reason}])
+    return ApiValidationError.at([where], reason)
 
 
 def read(content: bytes, fmt: MeshFormat) -> tuple[Any, np.ndarray]:

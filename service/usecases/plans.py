@@ -615,7 +615,7 @@ def parse_sections(fields: str | None) -> set[str]:
     unknown = sorted(names - set(PLAN_SECTIONS))
     if unknown:
         msg = f"unknown section(s) {', '.join(unknown)}; valid: {', '.join(PLAN_SECTIONS)}"
-        raise ApiValidationError(f"query.fields: {msg}", [{"loc": ["query", "fields"], "msg": msg}])
+        raise ApiValidationError.at(["query", "fields"], msg)
     return names
 
 

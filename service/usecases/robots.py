@@ -116,16 +116,17 @@ def resolve(
                 distinct_names(model, inline)
             return None, model
     if robot_id is None:
-        raise ApiValidationError(
-            "body.robot_id: give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
-            [{"loc": ["body", "robot_id"], "msg": "robot_id or robot is required"}],
+        raise ApiValidationError.at(
+            ["body", "robot_id"],
+            "robot_id or robot is required",
+            detail="give either robot_id (a stored robot, e.g. 'table1') or an inline robot",
         )
     try:
         model = stored_model(load(session, robot_id))
         _STORED.put(robot_id, model)
         return robot_id, model
     except UnusableRobotError as exc:
-        raise ApiValidationError(f"body.robot_id: {exc.detail}", [{"loc": ["body", "robot_id"], "msg": exc.detail}]) from None
+        raise ApiValidationError.at(["body", "robot_id"], exc.detail) from None
 
 
 def stored_model(robot: Robot) -> RobotModel:
@@ -205,8 +206,7 @@ def jacobian(session: Session, robot_id: str, body: JacobianRequest) -> Jacobian
     with located(body, "body"):
         gjm = generalized_jacobian(model, body.to_engine(model))
     if not gjm.success:
-        msg = f"path.robot_id: robot {robot_id!r}: {gjm.message}"
-        raise ApiValidationError(msg, [{"loc": ["path", "robot_id"], "msg": gjm.message}])
+        raise ApiValidationError.at(["path", "robot_id"], gjm.message, detail=f"robot {robot_id!r}: {gjm.message}")
     return JacobianOut.from_engine(gjm)
 
 

@@ -78,7 +78,7 @@ def check(model: RobotModel, body: TuningJobRequest) -> list[TuningProblem]:
     evaluations = planned_evaluations(body)
     if evaluations > MAX_PLAN_EVALUATIONS:
         msg = f"population * (generations + 1) * tasks{twice} = {evaluations} plan evaluations, at most {MAX_PLAN_EVALUATIONS}"
-        raise ApiValidationError(f"body.ga: {msg}", [{"loc": ["body", "ga"], "msg": msg}])
+        raise ApiValidationError.at(["body", "ga"], msg)
     problems = body.problems(model)
     work = planned_joint_steps(body, problems, model)  # plan_steps() counts the samples
     if work > MAX_JOB_JOINT_STEPS:
@@ -89,7 +89,7 @@ def check(model: RobotModel, body: TuningJobRequest) -> list[TuningProblem]:
             f"{work * 1e-6 / 3600:.1g} h of one core): use fewer generations, a smaller population, fewer or "
             "shorter tasks, or a coarser dt_s"
         )
-        raise ApiValidationError(f"{'.'.join(where)}: {msg}", [{"loc": where, "msg": msg}])
+        raise ApiValidationError.at(where, msg)
     return problems
 
 
@@ -212,7 +212,7 @@ def _replayed(session: Session, job: TuningJob, key: str, digest: str) -> Tuning
     """The answer to a retry: the first job, unless the key came with another body (422)."""
     if job.idempotency_fingerprint is not None and job.idempotency_fingerprint != digest:
         msg = f"the Idempotency-Key {key!r} was used for a different request body (job {job.id}); use a new key"
-        raise ApiValidationError(f"header.Idempotency-Key: {msg}", [{"loc": ["header", "Idempotency-Key"], "msg": msg}])
+        raise ApiValidationError.at(["header", "Idempotency-Key"], msg)
     return view(job, history(session, [job])[job.id])
 
 
