@@ -11,9 +11,11 @@ Every test here failed on the commit before the fixes (e7099fe). The measured fi
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import re
+import socket
 import sqlite3
 import threading
 import time
@@ -261,6 +263,45 @@ def test_urdf_uploads_wait_for_the_plan_admission(make_stack: Callable[..., Stac
         print(f"\nURDF uploads while a landscape held the only slot: {dict(statuses)}; the landscape: {plan.status_code}")
         assert plan.status_code == 201 and statuses[503] == 1
         assert client.post("/v1/robots", json={"urdf": ARM3, "end_effector_link": "tool0"}).status_code == 201
+
+
+def _raw_exchange(port: int, pieces: list[bytes]) -> bytes:
+    """The head of what the API answers to ``pieces`` sent one read apart (as much as it sent
+    before closing)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+        with contextlib.suppress(ConnectionResetError, BrokenPipeError):  # refused mid-send
+            for piece in pieces:
+                sock.sendall(piece)
+                time.sleep(0.02)  # each piece its own read on the server
+        answer = b""
+        with contextlib.suppress(OSError):
+            while b"\r\n\r\n" not in answer and (chunk := sock.recv(65536)):
+                answer += chunk
+        return answer
+
+
+def test_request_heads_are_bounded(stack: Stack) -> None:
+    """httptools, unlike h11, has no limit on a request's head: one header sent without end would
+    be gathered in memory. The server refuses a head over 16 KiB (h11's limit) with a 431, sent
+    at once or a kilobyte a read, and still answers heads within it and bodies of any size."""
+    start = b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Pad: "
+    end = b"\r\n\r\n"
+    within = start + b"a" * (16 * 1024 - len(start) - len(end)) + end
+    assert len(within) == 16 * 1024
+    over = start + b"a" * (16 * 1024 + 1 - len(start) - len(end)) + end
+    assert _raw_exchange(stack.port, [within]).startswith(b"HTTP/1.1 200")
+    assert _raw_exchange(stack.port, [within[i : i + 1024] for i in range(0, len(within), 1024)]).startswith(b"HTTP/1.1 200")
+    assert _raw_exchange(stack.port, [over]).startswith(b"HTTP/1.1 431")
+    trickled = start + b"a" * (64 * 1024)  # never ends: refused once 16 KiB are in
+    assert _raw_exchange(stack.port, [trickled[i : i + 1024] for i in range(0, len(trickled), 1024)]).startswith(b"HTTP/1.1 431")
+    # a large body in the same read as its head is not part of the head
+    body = json.dumps({"name": "big", "links": [], "pad": "x" * 200_000}).encode()
+    post = b"POST /v1/robots HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+    post += b"Content-Length: " + str(len(body)).encode() + b"\r\n\r\n" + body
+    answered = _raw_exchange(stack.port, [post])
+    assert answered.startswith(b"HTTP/1.1 4") and not answered.startswith(b"HTTP/1.1 431"), answered[:200]
+    with stack.client() as client:  # the server is unharmed
+        assert client.get("/healthz").status_code == 200
 
 
 # --- 5. DNS rebinding
