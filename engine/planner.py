@@ -615,12 +615,19 @@ def run_plan(setup: PlanSetup, inverse: Inverse) -> PlanResult:
         mount_force=force,
         mount_torque=torque,
         clearance=clearance,
-        clearance_pair=tuple(setup.geometry.pair_names(int(p)) if p >= 0 else None for p in clearance_pair),
+        clearance_pair=_pair_names(setup.geometry, clearance_pair),
         metrics=metrics,
         success=success,
         message=message,
         task=task,
     )
+
+
+def _pair_names(geometry: Geometry, pairs: FloatArray) -> tuple[tuple[str, str] | None, ...]:
+    """The owners of each sample's nearest pair ``pairs (N+1,)`` (-1: none)."""
+    if not geometry.active:
+        return (None,) * len(pairs)
+    return tuple(geometry.pair_names(p) if p >= 0 else None for p in pairs.astype(int).tolist())
 
 
 @dataclass(frozen=True)

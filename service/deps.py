@@ -210,6 +210,12 @@ def negotiate(accept: str | None, offered: list[str]) -> str | None:
     empty or malformed header (which RFC 9110 lets a server ignore); None when it accepts none."""
     if accept is None or not accept.strip():
         return offered[0]
+    return _best_match(accept, tuple(offered))
+
+
+@functools.lru_cache(maxsize=256)
+def _best_match(accept: str, offered: tuple[str, ...]) -> str | None:
+    # kept: clients send the same few headers, and parsing one cost a request 0.02 ms
     try:
         best: str = mimeparse.best_match(offered[::-1], accept)  # it prefers the last of equals
     except mimeparse.MimeTypeParseException:

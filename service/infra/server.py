@@ -125,9 +125,9 @@ class GuardedProtocol(HttpToolsProtocol):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._phase: str | None = None  # "headers", "body", or None (nothing awaited from the client)
-        self._deadline = 0.0
-        self._body_start = 0.0
+        self._deadline = 0.0  # the phase's, on the loop's clock (a body's grows with its bytes)
         self._body_bytes = 0
+        # one timer at a time, re-armed when it fires early: two timers a request cost 0.03 ms
         self._timer: asyncio.TimerHandle | None = None
         self._head_bytes = 0  # of the head being received, before this read
         self._head_tail = b""  # its last bytes (its end may straddle two reads)
@@ -143,7 +143,10 @@ class GuardedProtocol(HttpToolsProtocol):
         self._start("headers", self.guards.header_timeout_s)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self._cancel()
+        self._phase = None
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
         super().connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
@@ -177,7 +180,7 @@ class GuardedProtocol(HttpToolsProtocol):
     def on_headers_complete(self) -> None:
         super().on_headers_complete()
         self._start("body", self.guards.body_timeout_s)  # until the message is complete
-        self._body_start, self._body_bytes = time.monotonic(), 0
+        self._body_bytes = 0
 
     def on_body(self, body: bytes) -> None:
         super().on_body(body)
@@ -188,25 +191,26 @@ class GuardedProtocol(HttpToolsProtocol):
         self._cancel()  # the request is complete: the rest is the handler's
 
     def _start(self, phase: str, timeout_s: float) -> None:
-        self._cancel()
         self._phase = phase
-        self._deadline = time.monotonic() + timeout_s
-        self._timer = self.loop.call_later(timeout_s, self._expire)
+        self._deadline = self.loop.time() + timeout_s
+        if self._timer is not None and self._timer.when() > self._deadline:
+            self._timer.cancel()  # it would fire too late
+            self._timer = None
+        if self._timer is None:
+            self._timer = self.loop.call_at(self._deadline, self._expire)
 
     def _cancel(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-        self._timer = None
-        self._phase = None
+        self._phase = None  # a pending timer finds nothing to do
 
     def _expire(self) -> None:
         self._timer = None
-        if self._phase == "body":  # a second more for every body_min_rate bytes received
-            deadline = self._deadline + self._body_bytes / self.guards.body_min_rate
-            if time.monotonic() < deadline:
-                self._timer = self.loop.call_later(deadline - time.monotonic(), self._expire)
-                return
         if self._phase is None or self.transport is None or self.transport.is_closing():
+            return
+        deadline = self._deadline
+        if self._phase == "body":  # a second more for every body_min_rate bytes received
+            deadline += self._body_bytes / self.guards.body_min_rate
+        if self.loop.time() < deadline:  # armed for an earlier phase, or the body is flowing
+            self._timer = self.loop.call_at(deadline, self._expire)
             return
         answering = self.cycle is not None and not self.cycle.response_complete
         if not (answering and self.cycle.response_started):
