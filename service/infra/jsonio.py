@@ -12,17 +12,26 @@ import numpy as np
 import orjson
 
 OPTIONS = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_UTC_Z
+CLEAN_OPTIONS = OPTIONS | orjson.OPT_NON_STR_KEYS
 
 
 def clean(value: Any) -> Any:
     """A JSON-safe copy of ``value`` for a JSON column: numpy to lists and Python numbers, NaN and
-    infinities to None."""
+    infinities to None, keys to strings. Through orjson and back where it can (a plan's request: 3
+    instead of 25 µs), else (integers beyond 64 bits, arrays orjson does not write) value by value."""
+    try:
+        return orjson.loads(orjson.dumps(value, option=CLEAN_OPTIONS))
+    except orjson.JSONEncodeError:
+        return _clean(value)
+
+
+def _clean(value: Any) -> Any:
     if isinstance(value, np.ndarray):
-        return clean(value.tolist())
+        return _clean(value.tolist())
     if isinstance(value, dict):
-        return {str(k): clean(v) for k, v in value.items()}
+        return {str(k): _clean(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [clean(v) for v in value]
+        return [_clean(v) for v in value]
     if isinstance(value, bool | np.bool_):
         return bool(value)
     if isinstance(value, int | np.integer):

@@ -13,6 +13,7 @@ import contextlib
 import copy
 import errno
 import json
+import math
 import os
 import re
 import shutil
@@ -265,6 +266,23 @@ def test_large_bodies_are_encoded_in_pieces_to_the_same_bytes() -> None:
     assert jsonio._has_large(value) and jsonio.dumps_large(value) == jsonio.dumps(value)
     assert not jsonio._has_large({**value, "trajectory": {"short": value["trajectory"]["short"]}})
     assert jsonio._has_large({"a": {"b": {"c": np.zeros(rows + 1)}}, "d": [np.zeros(rows + 1)]})
+
+
+def test_json_columns_get_json_values() -> None:
+    """What a JSON column stores: numpy arrays and scalars as lists and numbers, NaN and infinities
+    as null, tuples as lists, keys as strings; the same where orjson cannot write a value (an
+    integer beyond 64 bits, a column of an array) and the values are converted one by one."""
+    value = {
+        "a": np.array([1.0, np.nan, np.inf]),
+        1: (np.float64(2.5), np.int64(3), np.bool_(True)),
+        "b": [-math.inf, None, "x", {"c": math.nan}],
+    }
+    expected = {"a": [1.0, None, None], "1": [2.5, 3, True], "b": [None, None, "x", {"c": None}]}
+    assert jsonio.clean(value) == expected
+    assert jsonio.clean({**value, "big": 2**70}) == {**expected, "big": 2**70}
+    column = np.arange(12.0).reshape(3, 4)[:, 1]
+    assert jsonio.clean({**value, "column": column}) == {**expected, "column": [1.0, 5.0, 9.0]}
+    assert type(jsonio.clean({"n": np.int64(3)})["n"]) is int
 
 
 def test_an_exhausted_connection_pool_is_a_503_then_recovers(tmp_path: Path) -> None:
