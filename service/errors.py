@@ -199,7 +199,13 @@ def install(app: FastAPI) -> None:
         if exc.status_code == 413:
             errors = [field_error(["body"], str(exc.detail))]
             return problem(413, str(exc.detail), instance=request.url.path, headers=exc.headers, errors=errors)
-        return problem(exc.status_code, str(exc.detail), instance=request.url.path, headers=exc.headers)
+        detail = str(exc.detail)
+        if exc.status_code == 404 and detail == TITLES[404]:  # no route matched: say what the paths are
+            detail = (
+                f"nothing at {request.url.path}: GET /docs lists the API's paths (a stored plan's, job's or "
+                "landscape's id is 32 lowercase hexadecimal digits)"
+            )
+        return problem(exc.status_code, detail, instance=request.url.path, headers=exc.headers)
 
     def unavailable(request: Request, reason: str, retry_after_s: int) -> JSONResponse:
         return problem(

@@ -66,11 +66,20 @@ def planned_joint_steps(body: TuningJobRequest, problems: Sequence[TuningProblem
     )
 
 
+#: What in a request brings each phase of :meth:`TuningJobRequest.phases` (by its role).
+PHASE_CAUSES = {
+    "tuned": "the method tuned",
+    "dls_baseline": "compare_with_dls",
+    "bounded_baseline": "compare_with_bounded",
+    "nominal_tuned": "uncertainty",
+}
+
+
 def check(model: RobotModel, body: TuningJobRequest) -> list[TuningProblem]:
     """Everything the GA would refuse, checked up front so that a bad job is a 422, not a
     failure; the job's engine problems (one per phase)."""
-    count = len(body.phases())
-    twice = f" * {count} (phases: compare_with_dls, compare_with_bounded, uncertainty)" if count > 1 else ""
+    phases = [PHASE_CAUSES[role] for _, role, _ in body.phases()]
+    twice = f" * {len(phases)} (phases: {', '.join(phases)})" if len(phases) > 1 else ""
     samples = samples_of(body)
     sampled = f" * {samples} (uncertainty.samples)" if samples > 1 else ""
     # a robust job's excess is its samples' fault: the error names them

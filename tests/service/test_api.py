@@ -157,7 +157,10 @@ def test_plan_create_get_list(client: httpx.Client) -> None:
     assert listing["total"] >= 1
     assert plan["id"] in [p["id"] for p in listing["items"]]
     assert all("trajectory" not in p for p in listing["items"])
-    _problem(client.get("/v1/plans/nope"), 404)
+    unmatched = _problem(client.get("/v1/plans/nope"), 404)  # not an id: no route matches
+    assert "nothing at /v1/plans/nope" in unmatched["detail"] and "32 lowercase hexadecimal" in unmatched["detail"]
+    missing = _problem(client.get(f"/v1/plans/{'0' * 32}"), 404)  # an id no plan has
+    assert "0" * 32 in missing["detail"] and "nothing at" not in missing["detail"]
 
 
 def test_plan_variants_and_errors(client: httpx.Client) -> None:

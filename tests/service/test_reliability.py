@@ -717,3 +717,5 @@ def test_job_cost_is_capped_in_joint_steps(client: httpx.Client) -> None:
     print(f"\njob cost cap: {problem['detail']}")
     assert problem["errors"][0]["field"] == "body.ga"
     assert f"= {joint_steps:.3g} joint-steps, at most 7e+09 per job" in problem["detail"], problem
+    # the phases named are this job's: the method tuned and the DLS baseline (compare_with_dls, on by default)
+    assert "* 2 (phases: the method tuned, compare_with_dls) *" in problem["detail"], problem
