@@ -11,7 +11,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 
 from service.deps import DbDep, JsonBody, Limit, Offset, RobotId, SessionDep, SessionRoute, SettingsDep, one_of_body, run_admitted
-from service.errors import body_invalid, responses
+from service.errors import ApiValidationError, body_invalid, responses
 from service.schemas.robots import JacobianOut, JacobianRequest, RobotList, RobotOut, RobotParams, RobotUrdfIn
 from service.usecases import robots
 
@@ -44,6 +44,13 @@ CREATE_ROBOT_BODY = one_of_body(
 
 def _validated(body: dict[str, Any]) -> RobotParams | RobotUrdfIn:
     """``body`` validated as the schema it is (URDF or parameters), errors under ``body`` like FastAPI's own."""
+    if isinstance(body.get("parameters"), dict) and not {"base", "links", "urdf"} & body.keys():
+        # a stored robot's answer posted back: one error that says what to post, not one per field
+        raise ApiValidationError.at(
+            ["body"],
+            "this is a stored robot as GET /v1/robots/{robot_id} answers it (id, parameters, joints, ...); to "
+            "store a copy, post its `parameters` object (with a `name` of its own)",
+        )
     try:
         return robots.parameters_of(body).model_validate(body)
     except ValidationError as exc:

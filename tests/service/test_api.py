@@ -43,6 +43,10 @@ def test_robots_crud(client: httpx.Client) -> None:
     assert listing["total"] >= 1
     preset = client.get("/v1/robots/table1").json()
     assert preset["preset"] is True and preset["n_joints"] == 6
+    # the answer itself posted back: one error that says to post its parameters
+    answer = _problem(client.post("/v1/robots", json={**preset, "name": "my-arm"}), 422)
+    assert len(answer["errors"]) == 1 and answer["errors"][0]["field"] == "body", answer
+    assert "post its `parameters`" in answer["detail"], answer
     params = copy.deepcopy(preset["parameters"])
     params["name"] = "my-arm"
     params["base"]["mass"] = 500.0
