@@ -9,7 +9,7 @@ import functools
 import math
 import os
 
-from sqlalchemy import URL, text
+from sqlalchemy import URL, Connection, Engine, text
 from sqlalchemy.orm import Session
 
 from service.errors import ApiError
@@ -38,9 +38,13 @@ SQLITE_BYTES = text(
 POSTGRES_BYTES = text("SELECT pg_database_size(current_database())")
 
 
-def database_bytes(session: Session) -> int:
+def _bind(session: Session | Connection) -> Engine | Connection:
+    return session if isinstance(session, Connection) else session.get_bind()
+
+
+def database_bytes(session: Session | Connection) -> int:
     """Bytes the database holds."""
-    sqlite = session.get_bind().dialect.name == "sqlite"
+    sqlite = _bind(session).dialect.name == "sqlite"
     return int(session.execute(SQLITE_BYTES if sqlite else POSTGRES_BYTES).scalar() or 0)
 
 
@@ -52,11 +56,11 @@ def _file_of(url: URL) -> str | None:
     return None if path is None or "mode=memory" in str(url) else str(path)
 
 
-def files_bytes(session: Session) -> float:
+def files_bytes(session: Session | Connection) -> float:
     """What a SQLite database's file and its write-ahead log hold, at least the bytes it uses (its
     pages are in the file or, not yet checkpointed, in the log); infinite for other databases, or
     when the file cannot be found (the pages are counted then)."""
-    path = _file_of(session.get_bind().engine.url)
+    path = _file_of(_bind(session).engine.url)
     if path is None:
         return math.inf
     try:
@@ -68,7 +72,7 @@ def files_bytes(session: Session) -> float:
     return float(size)
 
 
-def check_quota(session: Session, quota: int | None, incoming: int) -> None:
+def check_quota(session: Session | Connection, quota: int | None, incoming: int) -> None:
     """Raise :class:`QuotaExceededError` if storing ``incoming`` more bytes would exceed ``quota``.
     The pages are only counted when the files come near the quota (a query costs a plan 0.2 ms)."""
     if quota is None or files_bytes(session) + incoming <= quota:

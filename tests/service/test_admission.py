@@ -442,9 +442,11 @@ def test_a_burst_of_long_plans_is_served_as_far_as_the_timeout_allows(make_stack
     assert sum("of work ahead" in r.text for r in answers if r.status_code == 503) >= statuses.count(503) // 2
 
 
-def test_on_the_event_loop_a_locked_database_is_not_waited_for(tmp_path: Path) -> None:
+@pytest.mark.parametrize("unit", ["session", "connection"])
+def test_on_the_event_loop_a_locked_database_is_not_waited_for(tmp_path: Path, unit: str) -> None:
     """Within ``elsewhere_if_locked`` a SQLite write that finds another writer's lock raises at
-    once, carrying the rest of the work; the pooled connection gets its busy timeout back."""
+    once, carrying the rest of the work; the pooled connection gets its busy timeout back. The
+    same through an ORM session and a Core connection (a plan's insert)."""
     path = tmp_path / "locked.db"
     with contextlib.closing(sqlite3.connect(path)) as setup:
         setup.execute("CREATE TABLE t (x INTEGER)")
@@ -453,8 +455,12 @@ def test_on_the_event_loop_a_locked_database_is_not_waited_for(tmp_path: Path) -
     other.execute("BEGIN IMMEDIATE")  # another writer holds the lock
 
     def write(value: int) -> None:
-        with db.session() as session:
-            session.execute(text("INSERT INTO t VALUES (:x)"), {"x": value})
+        if unit == "session":
+            with db.session() as session:
+                session.execute(text("INSERT INTO t VALUES (:x)"), {"x": value})
+        else:
+            with db.connection() as conn:
+                conn.execute(text("INSERT INTO t VALUES (:x)"), {"x": value})
 
     async def on_the_loop() -> None:
         started = time.monotonic()
