@@ -127,6 +127,9 @@ class GuardedProtocol(HttpToolsProtocol):
         self._phase: str | None = None  # "headers", "body", or None (nothing awaited from the client)
         self._deadline = 0.0  # the phase's, on the loop's clock (a body's grows with its bytes)
         self._body_bytes = 0
+        self._framing = 0  # bytes read in a body since its last body byte (chunk lines, trailers)
+        # bytes of a later request came while an answer was under way: timed once it is out
+        self._waiting = False
         # one timer at a time, re-armed when it fires early: two timers a request cost 0.03 ms
         self._timer: asyncio.TimerHandle | None = None
         self._head_bytes = 0  # of the head being received, before this read
@@ -152,11 +155,39 @@ class GuardedProtocol(HttpToolsProtocol):
     def data_received(self, data: bytes) -> None:
         # outside a body, the bytes are (the start of) a request's head
         if self._phase != "body" and self._head_too_large(data):
-            self._cancel()
-            self.transport.write(HEAD_TOO_LARGE)
-            self.transport.close()
+            self._refuse(HEAD_TOO_LARGE)
             return
+        if self._phase is None and data:
+            # any byte starts the next head's clock (llhttp skips a CR LF before a request line
+            # without a callback: a kept-alive connection would otherwise idle on at no cost)
+            self._later_request()
+        in_body, before = self._phase == "body", self._body_bytes
         super().data_received(data)
+        if not (in_body and self._phase == "body") or self.transport.is_closing():
+            return
+        # a chunked body's lines and trailers reach no callback until complete: httptools gathers
+        # a trailer without end (quadratically); bounded as a head is, between body bytes
+        self._framing = self._framing + len(data) if self._body_bytes == before else 0
+        if self._framing > MAX_HEAD_BYTES:
+            self._refuse(HEAD_TOO_LARGE)
+
+    def _refuse(self, answer: bytes) -> None:
+        self._cancel()
+        self.transport.write(answer)
+        self.transport.close()
+
+    def _answering(self) -> bool:
+        """Whether a request's answer is under way (uvicorn reads a later request, but runs it
+        only after)."""
+        return self.cycle is not None and not self.cycle.response_complete
+
+    def _later_request(self) -> None:
+        """The first bytes of a request: its head is timed from now, or from the end of the answer
+        under way (a pipelined request's timeout must not cut the answer before it)."""
+        if self._answering():
+            self._waiting = True
+        else:
+            self._start("headers", self.guards.header_timeout_s)
 
     def _head_too_large(self, data: bytes) -> bool:
         """Whether the head being received, with ``data``, is over :data:`MAX_HEAD_BYTES`. Bytes
@@ -175,12 +206,18 @@ class GuardedProtocol(HttpToolsProtocol):
     def on_message_begin(self) -> None:
         super().on_message_begin()
         if self._phase != "headers":
-            self._start("headers", self.guards.header_timeout_s)  # the first bytes of a later request
+            self._later_request()
 
     def on_headers_complete(self) -> None:
         super().on_headers_complete()
-        self._start("body", self.guards.body_timeout_s)  # until the message is complete
-        self._body_bytes = 0
+        self._body_bytes = self._framing = 0
+        if self.parser.should_upgrade() and self._should_upgrade():
+            self._cancel()  # the connection is the WebSocket protocol's from here
+        elif self.pipeline:
+            self._cancel()  # queued behind an answer: uvicorn reads on once it is out
+            self._waiting = True
+        else:
+            self._start("body", self.guards.body_timeout_s)  # until the message is complete
 
     def on_body(self, body: bytes) -> None:
         super().on_body(body)
@@ -189,6 +226,18 @@ class GuardedProtocol(HttpToolsProtocol):
     def on_message_complete(self) -> None:
         super().on_message_complete()
         self._cancel()  # the request is complete: the rest is the handler's
+        self._waiting = False
+
+    def on_response_complete(self) -> None:
+        super().on_response_complete()  # starts a queued request, if any
+        waiting, self._waiting = self._waiting, False
+        if self.transport.is_closing() or self._phase is not None:
+            return
+        if self._answering():
+            if self.cycle.more_body:  # the queued request's body is still to come
+                self._start("body", self.guards.body_timeout_s)
+        elif waiting:
+            self._start("headers", self.guards.header_timeout_s)
 
     def _start(self, phase: str, timeout_s: float) -> None:
         self._phase = phase

@@ -48,8 +48,8 @@ def _validated(body: dict[str, Any]) -> RobotParams | RobotUrdfIn:
         # a stored robot's answer posted back: one error that says what to post, not one per field
         raise ApiValidationError.at(
             ["body"],
-            "this is a stored robot as GET /v1/robots/{robot_id} answers it (id, parameters, joints, ...); to "
-            "store a copy, post its `parameters` object (with a `name` of its own)",
+            "a robot's `parameters` are the parameter set itself, not a field of it (GET /v1/robots/{robot_id} answers "
+            "with them beside id, joints, ...): to store a copy, post the `parameters` object (with a `name` of its own)",
         )
     try:
         return robots.parameters_of(body).model_validate(body)

@@ -46,7 +46,7 @@ def test_robots_crud(client: httpx.Client) -> None:
     # the answer itself posted back: one error that says to post its parameters
     answer = _problem(client.post("/v1/robots", json={**preset, "name": "my-arm"}), 422)
     assert len(answer["errors"]) == 1 and answer["errors"][0]["field"] == "body", answer
-    assert "post its `parameters`" in answer["detail"], answer
+    assert "post the `parameters` object" in answer["detail"], answer
     params = copy.deepcopy(preset["parameters"])
     params["name"] = "my-arm"
     params["base"]["mass"] = 500.0

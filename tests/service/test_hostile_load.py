@@ -267,6 +267,60 @@ def test_slow_clients_are_cut_off_and_connections_capped(make_stack: Callable[..
     assert len(re.findall("refused connections", log)) == 1  # throttled: once a minute
 
 
+def _until_closed(sock: socket.socket, bound_s: float) -> tuple[bytes, float | None]:
+    """What the server sends on ``sock`` until it closes it (and after how many seconds), or until
+    ``bound_s`` pass (None: still open)."""
+    start, answer = time.monotonic(), b""
+    sock.settimeout(0.2)
+    while time.monotonic() - start < bound_s:
+        try:
+            chunk = sock.recv(65536)
+        except TimeoutError:
+            continue
+        except OSError:
+            return answer, time.monotonic() - start
+        if not chunk:
+            return answer, time.monotonic() - start
+        answer += chunk
+    return answer, None
+
+
+def test_kept_alive_and_pipelined_connections_keep_to_the_guards(make_stack: Callable[..., Stack]) -> None:
+    """Three ways around the HTTP guards, each found by a review of the move to httptools, with 2 s
+    header and body timeouts: a blank line after an answer (httptools skips it without a callback,
+    and uvicorn's keep-alive timer stops at any byte), a chunked body's trailer that never ends
+    (httptools gathers it, quadratically), and a pipelined request whose body waits for the answer
+    before it (its timeout must neither cut that answer nor be lost)."""
+    stack = make_stack()
+    stack.env.update({"SPACEARM_HEADER_TIMEOUT_S": "2", "SPACEARM_BODY_TIMEOUT_S": "2", "SPACEARM_BODY_MIN_RATE": "1000"})
+    stack.start_api()
+    get = b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+    with socket.create_connection(("127.0.0.1", stack.port)) as sock:
+        sock.sendall(get)
+        assert sock.recv(65536).startswith(b"HTTP/1.1 200")
+        sock.sendall(b"\r\n")  # and nothing more
+        answer, closed = _until_closed(sock, 15.0)
+        assert closed is not None and closed < 6.0, (answer, closed)
+    trailer = b"POST /v1/robots HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+    trailer += b"Transfer-Encoding: chunked\r\n\r\n1\r\n{\r\n0\r\nX-Trailer: "
+    with socket.create_connection(("127.0.0.1", stack.port)) as sock:
+        sock.sendall(trailer)
+        with contextlib.suppress(OSError):  # refused mid-send
+            for _ in range(64):  # 64 KiB of one trailer, a kilobyte a read
+                sock.sendall(b"a" * 1024)
+                time.sleep(0.005)
+        answer, closed = _until_closed(sock, 15.0)
+        assert answer.startswith(b"HTTP/1.1 431") and closed is not None, (answer[:100], closed)
+    post = b"POST /v1/robots HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{"
+    with socket.create_connection(("127.0.0.1", stack.port)) as sock:
+        sock.sendall(get + post)  # the POST's body never comes
+        answer, closed = _until_closed(sock, 15.0)
+        assert answer.startswith(b"HTTP/1.1 200"), answer[:100]  # the answer before it, whole
+        assert b"HTTP/1.1 408" in answer and closed is not None and closed < 8.0, (answer, closed)
+    with httpx.Client(base_url=stack.url) as client:
+        assert client.get("/healthz").status_code == 200
+
+
 def test_running_out_of_file_descriptors_is_logged_once(make_stack: Callable[..., Stack]) -> None:
     """Defect 4: at ulimit -n 512 the accept loop wrote 211 MB of "Too many open files"
     tracebacks in 40 s. Here the connection cap is set above what ulimit -n 256 allows, and
