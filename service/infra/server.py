@@ -124,12 +124,17 @@ class GuardedProtocol(HttpToolsProtocol):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._phase: str | None = None  # "headers", "body", or None (nothing awaited from the client)
+        # what the connection waits for from the client: "headers" (a head under way), "body" (the
+        # body of the request last headed), "idle" (nothing, after a request answered before its
+        # body was read: uvicorn's keep-alive timer stopped at that body), or None (nothing: an
+        # answer is under way, or uvicorn keeps the connection alive); a pending timer finds
+        # nothing to do in None
+        self._phase: str | None = None
         self._deadline = 0.0  # the phase's, on the loop's clock (a body's grows with its bytes)
         self._body_bytes = 0
         self._framing = 0  # bytes read in a body since its last body byte (chunk lines, trailers)
-        # bytes of a later request came while an answer was under way: timed once it is out
-        self._waiting = False
+        # the deadline passed while an earlier request's answer was under way: checked at its end
+        self._overdue = False
         # one timer at a time, re-armed when it fires early: two timers a request cost 0.03 ms
         self._timer: asyncio.TimerHandle | None = None
         self._head_bytes = 0  # of the head being received, before this read
@@ -153,14 +158,14 @@ class GuardedProtocol(HttpToolsProtocol):
         super().connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
-        # outside a body, the bytes are (the start of) a request's head
-        if self._phase != "body" and self._head_too_large(data):
-            self._refuse(HEAD_TOO_LARGE)
-            return
-        if self._phase is None and data:
-            # any byte starts the next head's clock (llhttp skips a CR LF before a request line
-            # without a callback: a kept-alive connection would otherwise idle on at no cost)
-            self._later_request()
+        if self._phase != "body":  # the bytes are (the start of) a request's head
+            if self._head_too_large(data):
+                self._refuse(HEAD_TOO_LARGE)
+                return
+            if self._phase in (None, "idle") and data:
+                # any byte starts a head's clock: llhttp skips a CR LF before a request line without
+                # a callback, and uvicorn's keep-alive timer stops at any byte
+                self._start("headers", self.guards.header_timeout_s)
         in_body, before = self._phase == "body", self._body_bytes
         super().data_received(data)
         if not (in_body and self._phase == "body") or self.transport.is_closing():
@@ -172,22 +177,9 @@ class GuardedProtocol(HttpToolsProtocol):
             self._refuse(HEAD_TOO_LARGE)
 
     def _refuse(self, answer: bytes) -> None:
-        self._cancel()
+        self._phase = None
         self.transport.write(answer)
         self.transport.close()
-
-    def _answering(self) -> bool:
-        """Whether a request's answer is under way (uvicorn reads a later request, but runs it
-        only after)."""
-        return self.cycle is not None and not self.cycle.response_complete
-
-    def _later_request(self) -> None:
-        """The first bytes of a request: its head is timed from now, or from the end of the answer
-        under way (a pipelined request's timeout must not cut the answer before it)."""
-        if self._answering():
-            self._waiting = True
-        else:
-            self._start("headers", self.guards.header_timeout_s)
 
     def _head_too_large(self, data: bytes) -> bool:
         """Whether the head being received, with ``data``, is over :data:`MAX_HEAD_BYTES`. Bytes
@@ -206,16 +198,14 @@ class GuardedProtocol(HttpToolsProtocol):
     def on_message_begin(self) -> None:
         super().on_message_begin()
         if self._phase != "headers":
-            self._later_request()
+            self._start("headers", self.guards.header_timeout_s)
 
     def on_headers_complete(self) -> None:
         super().on_headers_complete()
-        self._body_bytes = self._framing = 0
+        self._body_bytes = self._framing = self._head_bytes = 0
+        self._head_tail = b""
         if self.parser.should_upgrade() and self._should_upgrade():
-            self._cancel()  # the connection is the WebSocket protocol's from here
-        elif self.pipeline:
-            self._cancel()  # queued behind an answer: uvicorn reads on once it is out
-            self._waiting = True
+            self._phase = None  # the connection is the WebSocket protocol's from here
         else:
             self._start("body", self.guards.body_timeout_s)  # until the message is complete
 
@@ -225,19 +215,35 @@ class GuardedProtocol(HttpToolsProtocol):
 
     def on_message_complete(self) -> None:
         super().on_message_complete()
-        self._cancel()  # the request is complete: the rest is the handler's
-        self._waiting = False
+        if self._answering():
+            self._phase = None  # the rest is the handler's
+        else:  # answered before its body was read (a 404, a refusal): kept alive from here
+            self._start("idle", self.config.timeout_keep_alive)
 
     def on_response_complete(self) -> None:
-        super().on_response_complete()  # starts a queued request, if any
-        waiting, self._waiting = self._waiting, False
-        if self.transport.is_closing() or self._phase is not None:
+        super().on_response_complete()  # starts the next queued request, if any
+        if self.transport.is_closing():
             return
-        if self._answering():
-            if self.cycle.more_body:  # the queued request's body is still to come
-                self._start("body", self.guards.body_timeout_s)
-        elif waiting:
-            self._start("headers", self.guards.header_timeout_s)
+        if self._phase == "body":
+            # a queued request's body, which uvicorn did not read while it waited (or the body of
+            # a request answered early): its time from now
+            self._overdue = False
+            self._start("body", self.guards.body_timeout_s)
+        elif self._overdue:
+            self._overdue = False
+            self._expire()
+
+    def _answering(self) -> bool:
+        """Whether an answer is under way (``self.cycle`` is the last request headed; the ones
+        before it are answered first)."""
+        return self.cycle is not None and not self.cycle.response_complete
+
+    def _earlier_answer(self) -> bool:
+        """Whether the answer of a request before the one awaited is under way (the awaited one's
+        timeout must not cut it)."""
+        if self._phase == "body":
+            return bool(self.pipeline)  # the awaited request is queued behind another
+        return self._answering()  # a head under way: every request headed came before it
 
     def _start(self, phase: str, timeout_s: float) -> None:
         self._phase = phase
@@ -248,21 +254,26 @@ class GuardedProtocol(HttpToolsProtocol):
         if self._timer is None:
             self._timer = self.loop.call_at(self._deadline, self._expire)
 
-    def _cancel(self) -> None:
-        self._phase = None  # a pending timer finds nothing to do
-
     def _expire(self) -> None:
         self._timer = None
         if self._phase is None or self.transport is None or self.transport.is_closing():
             return
+        now = self.loop.time()
         deadline = self._deadline
-        if self._phase == "body":  # a second more for every body_min_rate bytes received
-            deadline += self._body_bytes / self.guards.body_min_rate
-        if self.loop.time() < deadline:  # armed for an earlier phase, or the body is flowing
+        if self._phase == "body":
+            if self.flow is not None and self.flow.read_paused:  # the server holds the body back
+                deadline = self._deadline = max(deadline, now + self.guards.body_timeout_s)
+            deadline += self._body_bytes / self.guards.body_min_rate  # a second more per body_min_rate bytes
+        if now < deadline:  # armed for an earlier phase, or the body is flowing
             self._timer = self.loop.call_at(deadline, self._expire)
             return
-        answering = self.cycle is not None and not self.cycle.response_complete
-        if not (answering and self.cycle.response_started):
+        if self._earlier_answer():
+            self._overdue = True  # checked again when that answer is out
+            return
+        if self._phase == "idle":
+            self.transport.close()  # kept alive long enough: nothing to answer
+            return
+        if not (self._answering() and self.cycle.response_started):
             self.transport.write(TIMED_OUT)
         self._phase = None
         self.transport.close()

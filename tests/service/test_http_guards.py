@@ -1,0 +1,106 @@
+"""The HTTP guards (:mod:`service.infra.server`) around requests that arrive while other answers are
+under way, on a small app of their own served in this process by uvicorn with the guards' protocol
+and 2 s header and body timeouts: an answer sent before the body was read, a pipelined request
+queued behind two slow answers, and a large body pipelined behind a streamed answer. Each case is one
+a review of the move to httptools found broken."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+import time
+from collections.abc import AsyncIterator, Iterator
+
+import pytest
+import uvicorn
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import PlainTextResponse, StreamingResponse
+from starlette.routing import Route
+
+from service.infra.server import protocol_for
+from service.infra.settings import Settings
+from tests.service.conftest import free_port
+from tests.service.test_hostile_load import _until_closed
+
+
+async def slow(request: Request) -> PlainTextResponse:
+    await asyncio.sleep(float(request.query_params["s"]))
+    return PlainTextResponse(f"slept {request.query_params['s']}")
+
+
+async def stream(request: Request) -> StreamingResponse:
+    async def ticks() -> AsyncIterator[str]:
+        for i in range(12):
+            yield f"tick{i}\n"
+            await asyncio.sleep(0.25)
+
+    return StreamingResponse(ticks(), media_type="text/plain")
+
+
+async def echo(request: Request) -> PlainTextResponse:
+    return PlainTextResponse(f"got {len(await request.body())}")
+
+
+APP = Starlette(routes=[Route("/slow", slow), Route("/stream", stream), Route("/echo", echo, methods=["POST"])])
+
+
+@pytest.fixture(scope="module")
+def port() -> Iterator[int]:
+    chosen = free_port()
+    settings = Settings(header_timeout_s=2, body_timeout_s=2, body_min_rate=1000)
+    config = uvicorn.Config(
+        APP, host="127.0.0.1", port=chosen, http=protocol_for(settings), loop="asyncio", log_level="warning", timeout_keep_alive=3
+    )
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert server.started
+    yield chosen
+    server.should_exit = True
+    thread.join(10)
+
+
+def test_an_answer_before_the_body_leaves_a_timer(port: int) -> None:
+    """A 404 sent before the body was read, then the body's rest, then silence: uvicorn's keep-alive
+    timer stopped at those bytes, and the connection stayed open for ever."""
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(b'POST /nope HTTP/1.1\r\nHost: x\r\nContent-Length: 10\r\n\r\n{"a"')
+        time.sleep(0.5)
+        sock.sendall(b": 1}  ")
+        answer, closed = _until_closed(sock, 15.0)
+    assert answer.startswith(b"HTTP/1.1 404") and closed is not None and closed < 8.0, (answer, closed)
+    assert b"408" not in answer
+
+
+def test_a_queued_body_is_timed_from_its_turn_without_cutting_the_answers_before(port: int) -> None:
+    """Two slow requests and a POST whose body never comes, pipelined: both answers arrive whole, then
+    the POST's 408 (its body timer had fired during the second answer and replaced it)."""
+    heads = b"GET /slow?s=1 HTTP/1.1\r\nHost: x\r\n\r\nGET /slow?s=4 HTTP/1.1\r\nHost: x\r\n\r\n"
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(heads + b"POST /echo HTTP/1.1\r\nHost: x\r\nContent-Length: 100\r\n\r\n{")
+        answer, closed = _until_closed(sock, 20.0)
+    assert b"slept 1" in answer and b"slept 4" in answer, answer
+    assert answer.index(b"slept 4") < answer.index(b"HTTP/1.1 408"), answer
+    assert closed is not None
+
+
+def test_a_large_body_pipelined_behind_a_stream_is_a_body(port: int) -> None:
+    """A 40 kB body sent a kilobyte at a time behind a streamed answer: its bytes were read as a head
+    (431 in the middle of the stream)."""
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(b"GET /stream HTTP/1.1\r\nHost: x\r\n\r\nPOST /echo HTTP/1.1\r\nHost: x\r\nContent-Length: 40000\r\n\r\n")
+        for _ in range(40):
+            sock.sendall(b"a" * 1000)
+            time.sleep(0.01)
+        sock.settimeout(10.0)
+        answer = b""
+        while b"got 40000" not in answer:
+            chunk = sock.recv(65536)
+            assert chunk, answer
+            answer += chunk
+    assert b"431" not in answer and b"tick11" in answer, answer
