@@ -135,6 +135,7 @@ class GuardedProtocol(HttpToolsProtocol):
         self._framing = 0  # bytes read in a body since its last body byte (chunk lines, trailers)
         # the deadline passed while an earlier request's answer was under way: checked at its end
         self._overdue = False
+        self._close_after = False  # refused while an answer was under way: close once it is out
         # one timer at a time, re-armed when it fires early: two timers a request cost 0.03 ms
         self._timer: asyncio.TimerHandle | None = None
         self._head_bytes = 0  # of the head being received, before this read
@@ -158,6 +159,8 @@ class GuardedProtocol(HttpToolsProtocol):
         super().connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
+        if self._close_after:
+            return  # refused: what follows is not read
         if self._phase != "body":  # the bytes are (the start of) a request's head
             if self._head_too_large(data):
                 self._refuse(HEAD_TOO_LARGE)
@@ -177,9 +180,16 @@ class GuardedProtocol(HttpToolsProtocol):
             self._refuse(HEAD_TOO_LARGE)
 
     def _refuse(self, answer: bytes) -> None:
+        """Refuse the request being received: ``answer`` and close, or, while an earlier request's
+        answer is under way (it is owed first), read no more and close once it is out."""
+        earlier = self._earlier_answer()  # of the phase the refusal ends
         self._phase = None
-        self.transport.write(answer)
-        self.transport.close()
+        if earlier:
+            self._close_after = True
+            self.transport.pause_reading()
+        else:
+            self.transport.write(answer)
+            self.transport.close()
 
     def _head_too_large(self, data: bytes) -> bool:
         """Whether the head being received, with ``data``, is over :data:`MAX_HEAD_BYTES`. Bytes
@@ -221,17 +231,17 @@ class GuardedProtocol(HttpToolsProtocol):
             self._start("idle", self.config.timeout_keep_alive)
 
     def on_response_complete(self) -> None:
+        if self._close_after:
+            self.transport.close()  # the answer owed before a refused request is out
         super().on_response_complete()  # starts the next queued request, if any
         if self.transport.is_closing():
             return
-        if self._phase == "body":
-            # a queued request's body, which uvicorn did not read while it waited (or the body of
-            # a request answered early): its time from now
+        phase = self._phase
+        if phase == "body" or (phase == "headers" and self._overdue):
+            # what uvicorn did not read while an earlier answer was under way (a queued request's
+            # body, the rest of a head; or the body of a request answered early): its time from now
             self._overdue = False
-            self._start("body", self.guards.body_timeout_s)
-        elif self._overdue:
-            self._overdue = False
-            self._expire()
+            self._start(phase, self.guards.body_timeout_s if phase == "body" else self.guards.header_timeout_s)
 
     def _answering(self) -> bool:
         """Whether an answer is under way (``self.cycle`` is the last request headed; the ones
@@ -260,10 +270,15 @@ class GuardedProtocol(HttpToolsProtocol):
             return
         now = self.loop.time()
         deadline = self._deadline
+        held = self.flow is not None and self.flow.read_paused  # the server holds the bytes back
         if self._phase == "body":
-            if self.flow is not None and self.flow.read_paused:  # the server holds the body back
-                deadline = self._deadline = max(deadline, now + self.guards.body_timeout_s)
+            # nor has it asked for the body yet (Expect: 100-continue, before the handler reads)
+            held = held or (self.cycle is not None and self.cycle.waiting_for_100_continue)
             deadline += self._body_bytes / self.guards.body_min_rate  # a second more per body_min_rate bytes
+        if held and self._phase != "idle":
+            timeout_s = self.guards.body_timeout_s if self._phase == "body" else self.guards.header_timeout_s
+            deadline = max(deadline, now + timeout_s)
+            self._deadline = max(self._deadline, now + timeout_s)
         if now < deadline:  # armed for an earlier phase, or the body is flowing
             self._timer = self.loop.call_at(deadline, self._expire)
             return
@@ -273,7 +288,8 @@ class GuardedProtocol(HttpToolsProtocol):
         if self._phase == "idle":
             self.transport.close()  # kept alive long enough: nothing to answer
             return
-        if not (self._answering() and self.cycle.response_started):
+        # a 408 answers the request awaited, unless it has had an answer (sent before its body)
+        if self._phase == "headers" or not self.cycle.response_started:
             self.transport.write(TIMED_OUT)
         self._phase = None
         self.transport.close()

@@ -2,7 +2,8 @@
 under way, on a small app of their own served in this process by uvicorn with the guards' protocol
 and 2 s header and body timeouts: an answer sent before the body was read, a pipelined request
 queued behind two slow answers, and a large body pipelined behind a streamed answer. Each case is one
-a review of the move to httptools found broken."""
+a review of the move to httptools found broken; then a refusal behind an answer under way, and a
+body the server has not asked for yet (``Expect: 100-continue``)."""
 
 from __future__ import annotations
 
@@ -43,7 +44,19 @@ async def echo(request: Request) -> PlainTextResponse:
     return PlainTextResponse(f"got {len(await request.body())}")
 
 
-APP = Starlette(routes=[Route("/slow", slow), Route("/stream", stream), Route("/echo", echo, methods=["POST"])])
+async def late_read(request: Request) -> PlainTextResponse:
+    await asyncio.sleep(float(request.query_params["s"]))
+    return await echo(request)
+
+
+APP = Starlette(
+    routes=[
+        Route("/slow", slow),
+        Route("/stream", stream),
+        Route("/echo", echo, methods=["POST"]),
+        Route("/late-read", late_read, methods=["POST"]),
+    ]
+)
 
 
 @pytest.fixture(scope="module")
@@ -104,3 +117,29 @@ def test_a_large_body_pipelined_behind_a_stream_is_a_body(port: int) -> None:
             assert chunk, answer
             answer += chunk
     assert b"431" not in answer and b"tick11" in answer, answer
+
+
+def test_a_refusal_waits_for_the_answer_owed_before_it(port: int) -> None:
+    """A head over 16 KiB pipelined behind a slow answer: the answer comes whole, then the connection
+    closes (the 431 had been written in its place)."""
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(b"GET /slow?s=1 HTTP/1.1\r\nHost: x\r\n\r\n")
+        time.sleep(0.2)
+        sock.sendall(b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\nCookie: " + b"a" * 17_000 + b"\r\n\r\n")
+        answer, closed = _until_closed(sock, 10.0)
+    assert answer.startswith(b"HTTP/1.1 200") and b"slept 1" in answer and b"431" not in answer, answer
+    assert closed is not None
+
+
+def test_a_body_is_not_timed_before_the_server_asks_for_it(port: int) -> None:
+    """``Expect: 100-continue`` and a handler that reads the body after 3 s (the body timeout is 2 s):
+    the client is asked for the body when the handler reads it, and its answer comes (a 408 did)."""
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(b"POST /late-read?s=3 HTTP/1.1\r\nHost: x\r\nExpect: 100-continue\r\nContent-Length: 5\r\n\r\n")
+        sock.settimeout(10.0)
+        assert sock.recv(1000).startswith(b"HTTP/1.1 100")
+        sock.sendall(b"hello")
+        answer = b""
+        while b"got" not in answer and (chunk := sock.recv(65536)):
+            answer += chunk
+    assert answer.startswith(b"HTTP/1.1 200") and b"got 5" in answer, answer
