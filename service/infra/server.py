@@ -58,6 +58,8 @@ HEAD_TOO_LARGE = b"HTTP/1.1 431 Request Header Fields Too Large\r\nconnection: c
 #: The most bytes a request's line and headers may take (with the blank line that ends them).
 MAX_HEAD_BYTES = 16 * 1024
 HEAD_END = b"\r\n\r\n"
+#: How often a connection whose awaited bytes the server holds back checks whether they flow again.
+HELD_POLL_S = 0.5
 ACCEPT_EXHAUSTED = "socket.accept() out of system resource"
 
 
@@ -136,6 +138,9 @@ class GuardedProtocol(HttpToolsProtocol):
         # the deadline passed while an earlier request's answer was under way: checked at its end
         self._overdue = False
         self._close_after = False  # refused while an answer was under way: close once it is out
+        # the server held back the bytes awaited (flow control, Expect: 100-continue) when the timer
+        # last fired: it fires every HELD_POLL_S until they flow, then gives them their full time
+        self._held = False
         # one timer at a time, re-armed when it fires early: two timers a request cost 0.03 ms
         self._timer: asyncio.TimerHandle | None = None
         self._head_bytes = 0  # of the head being received, before this read
@@ -218,6 +223,9 @@ class GuardedProtocol(HttpToolsProtocol):
             self._phase = None  # the connection is the WebSocket protocol's from here
         else:
             self._start("body", self.guards.body_timeout_s)  # until the message is complete
+            if self.cycle.waiting_for_100_continue:  # the client waits until the handler asks
+                self._held = True
+                self._poll()
 
     def on_body(self, body: bytes) -> None:
         super().on_body(body)
@@ -225,6 +233,8 @@ class GuardedProtocol(HttpToolsProtocol):
 
     def on_message_complete(self) -> None:
         super().on_message_complete()
+        if self.parser.should_upgrade() and self._should_upgrade():
+            return  # the connection is the WebSocket protocol's
         if self._answering():
             self._phase = None  # the rest is the handler's
         else:  # answered before its body was read (a 404, a refusal): kept alive from here
@@ -257,6 +267,7 @@ class GuardedProtocol(HttpToolsProtocol):
 
     def _start(self, phase: str, timeout_s: float) -> None:
         self._phase = phase
+        self._held = False
         self._deadline = self.loop.time() + timeout_s
         if self._timer is not None and self._timer.when() > self._deadline:
             self._timer.cancel()  # it would fire too late
@@ -264,21 +275,32 @@ class GuardedProtocol(HttpToolsProtocol):
         if self._timer is None:
             self._timer = self.loop.call_at(self._deadline, self._expire)
 
+    def _poll(self) -> None:
+        """Fire again in :data:`HELD_POLL_S` (instead of at the deadline)."""
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = self.loop.call_later(HELD_POLL_S, self._expire)
+
     def _expire(self) -> None:
         self._timer = None
         if self._phase is None or self.transport is None or self.transport.is_closing():
             return
         now = self.loop.time()
+        if self._phase != "idle":
+            held = self.flow is not None and self.flow.read_paused  # the server holds the bytes back
+            if self._phase == "body":  # nor has it asked for the body yet (Expect: 100-continue)
+                held = held or (self.cycle is not None and self.cycle.waiting_for_100_continue)
+            if held:
+                self._held = True
+                self._poll()
+                return
+            if self._held:  # they flow again: their full time from now
+                self._held = False
+                timeout_s = self.guards.body_timeout_s if self._phase == "body" else self.guards.header_timeout_s
+                self._deadline = max(self._deadline, now + timeout_s)
         deadline = self._deadline
-        held = self.flow is not None and self.flow.read_paused  # the server holds the bytes back
         if self._phase == "body":
-            # nor has it asked for the body yet (Expect: 100-continue, before the handler reads)
-            held = held or (self.cycle is not None and self.cycle.waiting_for_100_continue)
             deadline += self._body_bytes / self.guards.body_min_rate  # a second more per body_min_rate bytes
-        if held and self._phase != "idle":
-            timeout_s = self.guards.body_timeout_s if self._phase == "body" else self.guards.header_timeout_s
-            deadline = max(deadline, now + timeout_s)
-            self._deadline = max(self._deadline, now + timeout_s)
         if now < deadline:  # armed for an earlier phase, or the body is flowing
             self._timer = self.loop.call_at(deadline, self._expire)
             return
