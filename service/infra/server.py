@@ -154,7 +154,7 @@ class GuardedProtocol(HttpToolsProtocol):
             REFUSALS.warn("refused connections: %d are open (SPACEARM_MAX_CONNECTIONS)", self.guards.max_connections)
             return
         super().connection_made(transport)
-        self._start("headers", self.guards.header_timeout_s)
+        self._start("headers")
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._phase = None
@@ -173,7 +173,7 @@ class GuardedProtocol(HttpToolsProtocol):
             if self._phase in (None, "idle") and data:
                 # any byte starts a head's clock: llhttp skips a CR LF before a request line without
                 # a callback, and uvicorn's keep-alive timer stops at any byte
-                self._start("headers", self.guards.header_timeout_s)
+                self._start("headers")
         in_body, before = self._phase == "body", self._body_bytes
         super().data_received(data)
         if not (in_body and self._phase == "body") or self.transport.is_closing():
@@ -213,16 +213,16 @@ class GuardedProtocol(HttpToolsProtocol):
     def on_message_begin(self) -> None:
         super().on_message_begin()
         if self._phase != "headers":
-            self._start("headers", self.guards.header_timeout_s)
+            self._start("headers")
 
     def on_headers_complete(self) -> None:
         super().on_headers_complete()
         self._body_bytes = self._framing = self._head_bytes = 0
         self._head_tail = b""
-        if self.parser.should_upgrade() and self._should_upgrade():
+        if self._upgrading():
             self._phase = None  # the connection is the WebSocket protocol's from here
         else:
-            self._start("body", self.guards.body_timeout_s)  # until the message is complete
+            self._start("body")  # until the message is complete
             if self.cycle.waiting_for_100_continue:  # the client waits until the handler asks
                 self._held = True
                 self._poll()
@@ -233,12 +233,12 @@ class GuardedProtocol(HttpToolsProtocol):
 
     def on_message_complete(self) -> None:
         super().on_message_complete()
-        if self.parser.should_upgrade() and self._should_upgrade():
+        if self._upgrading():
             return  # the connection is the WebSocket protocol's
         if self._answering():
             self._phase = None  # the rest is the handler's
         else:  # answered before its body was read (a 404, a refusal): kept alive from here
-            self._start("idle", self.config.timeout_keep_alive)
+            self._start("idle")
 
     def on_response_complete(self) -> None:
         if self._close_after:
@@ -251,7 +251,12 @@ class GuardedProtocol(HttpToolsProtocol):
             # what uvicorn did not read while an earlier answer was under way (a queued request's
             # body, the rest of a head; or the body of a request answered early): its time from now
             self._overdue = False
-            self._start(phase, self.guards.body_timeout_s if phase == "body" else self.guards.header_timeout_s)
+            self._start(phase)
+
+    def _upgrading(self) -> bool:
+        """Whether the request being read hands the connection to the WebSocket protocol (as
+        uvicorn decides it)."""
+        return bool(self.parser.should_upgrade()) and self._should_upgrade()
 
     def _answering(self) -> bool:
         """Whether an answer is under way (``self.cycle`` is the last request headed; the ones
@@ -265,10 +270,16 @@ class GuardedProtocol(HttpToolsProtocol):
             return bool(self.pipeline)  # the awaited request is queued behind another
         return self._answering()  # a head under way: every request headed came before it
 
-    def _start(self, phase: str, timeout_s: float) -> None:
+    def _timeout_s(self, phase: str) -> float:
+        """The time a phase gets: the guards' for a head or a body, uvicorn's keep-alive when idle."""
+        if phase == "headers":
+            return self.guards.header_timeout_s
+        return self.guards.body_timeout_s if phase == "body" else float(self.config.timeout_keep_alive)
+
+    def _start(self, phase: str) -> None:
         self._phase = phase
         self._held = False
-        self._deadline = self.loop.time() + timeout_s
+        self._deadline = self.loop.time() + self._timeout_s(phase)
         if self._timer is not None and self._timer.when() > self._deadline:
             self._timer.cancel()  # it would fire too late
             self._timer = None
@@ -296,8 +307,7 @@ class GuardedProtocol(HttpToolsProtocol):
                 return
             if self._held:  # they flow again: their full time from now
                 self._held = False
-                timeout_s = self.guards.body_timeout_s if self._phase == "body" else self.guards.header_timeout_s
-                self._deadline = max(self._deadline, now + timeout_s)
+                self._deadline = max(self._deadline, now + self._timeout_s(self._phase))
         deadline = self._deadline
         if self._phase == "body":
             deadline += self._body_bytes / self.guards.body_min_rate  # a second more per body_min_rate bytes
