@@ -109,6 +109,14 @@ class Param:
 
     def check(self, value: ArrayLike, field: str | None = None) -> FloatArray:
         """``value`` (scalar or array) as a float array within the valid range; else ParameterError."""
+        # a request's scalar within range: no numpy reductions (0.05 ms a plan)
+        if (
+            type(value) is float
+            and math.isfinite(value)
+            and (value > self.low if self.low_open else value >= self.low)
+            and value <= self.high
+        ):
+            return np.asarray(value)
         label = field or self.name
         arr = np.asarray(value, dtype=float)
         if not np.all(np.isfinite(arr)):

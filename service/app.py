@@ -22,6 +22,7 @@ from engine.kernels.jit import park_linking_modules
 from service import errors, openapi
 from service.infra import observability, security
 from service.infra.admission import INLINE_MAX_COST, Admission
+from service.infra.checkpoint import Checkpointer
 from service.infra.collector import resume_collector
 from service.infra.db import Database
 from service.infra.metrics import process_exited
@@ -179,6 +180,7 @@ def create_app(settings: Settings | None = None, *, freeze_heap: bool = False) -
             pool_size=settings.pool_size(),
             max_overflow=0,
             pool_timeout_s=settings.db_pool_timeout_s,
+            background_checkpoints=True,  # the Checkpointer below: no fsync on a request's commit
         )
         app.state.db = db
         # readiness has a connection and a thread of its own: it answers however busy the API is
@@ -204,12 +206,17 @@ def create_app(settings: Settings | None = None, *, freeze_heap: bool = False) -
         sweeper = Sweeper(db, settings.retention_days, settings.retention_sweep_s) if settings.retention_days else None
         if sweeper is not None:
             sweeper.start()
+        checkpointer = Checkpointer(db.path) if db.path is not None else None
+        if checkpointer is not None:
+            checkpointer.start()
         try:
             yield
         finally:
             try:
                 if sweeper is not None:
                     sweeper.stop()
+                if checkpointer is not None:
+                    checkpointer.stop()
                 db.dispose()
                 app.state.health_db.dispose()
             finally:

@@ -198,10 +198,12 @@ def make_engine(
     pool_size: int = 5,
     max_overflow: int = 10,
     pool_timeout_s: float = 30.0,
+    background_checkpoints: bool = False,
 ) -> Engine:
     """An engine for ``url``. SQLite: ``create`` lets connecting create the file and makes DDL
-    transactional (for migrations); ``busy_timeout_ms`` only applies to SQLite. The pool's size,
-    overflow and timeout apply to every database."""
+    transactional (for migrations); ``busy_timeout_ms`` only applies to SQLite;
+    ``background_checkpoints``: commits leave the WAL to a :class:`service.infra.checkpoint.Checkpointer`.
+    The pool's size, overflow and timeout apply to every database."""
     ensure_sqlite_dir(url)
     parsed = make_url(url)
     path = sqlite_path(parsed)
@@ -239,6 +241,8 @@ def make_engine(
             cursor.execute(f"PRAGMA busy_timeout={int(busy_timeout_ms)}")
             cursor.execute("PRAGMA foreign_keys=ON")
             cursor.execute("PRAGMA synchronous=NORMAL")
+            if background_checkpoints:
+                cursor.execute("PRAGMA wal_autocheckpoint=0")
             cursor.close()
 
         if create:
@@ -263,12 +267,18 @@ class Database:
         pool_size: int = 5,
         max_overflow: int = 10,
         pool_timeout_s: float = 30.0,
+        background_checkpoints: bool = False,
     ) -> None:
         self.url = url
         self.path = sqlite_path(url)
         self.busy_timeout_ms = busy_timeout_ms
         self.engine = make_engine(
-            url, busy_timeout_ms, pool_size=pool_size, max_overflow=max_overflow, pool_timeout_s=pool_timeout_s
+            url,
+            busy_timeout_ms,
+            pool_size=pool_size,
+            max_overflow=max_overflow,
+            pool_timeout_s=pool_timeout_s,
+            background_checkpoints=background_checkpoints,
         )
         self.sessionmaker = sessionmaker(self.engine, expire_on_commit=False)
         self._identity: tuple[int, int, bool] | None = None

@@ -5,11 +5,11 @@
 from __future__ import annotations
 
 import contextlib
-import functools
 import math
 import os
+import weakref
 
-from sqlalchemy import URL, Connection, Engine, text
+from sqlalchemy import Connection, Engine, text
 from sqlalchemy.orm import Session
 
 from service.errors import ApiError
@@ -48,19 +48,26 @@ def database_bytes(session: Session | Connection) -> int:
     return int(session.execute(SQLITE_BYTES if sqlite else POSTGRES_BYTES).scalar() or 0)
 
 
-@functools.lru_cache(maxsize=16)
-def _file_of(url: URL) -> str | None:
-    """The file of a SQLite database ``url`` (None: not SQLite, or in memory); kept, as rendering
-    the URL cost a plan 0.02 ms."""
-    path = sqlite_path(url)
-    return None if path is None or "mode=memory" in str(url) else str(path)
+#: The file of each SQLite engine's database (None: not SQLite, or in memory), kept by engine: an
+#: engine's URL does not change, and hashing a URL renders it (0.02 ms a plan).
+_FILES: weakref.WeakKeyDictionary[Engine, str | None] = weakref.WeakKeyDictionary()
+
+
+def _file_of(engine: Engine) -> str | None:
+    """The file of a SQLite database's ``engine`` (None: not SQLite, or in memory)."""
+    try:
+        return _FILES[engine]
+    except KeyError:
+        path = sqlite_path(engine.url)
+        found = _FILES[engine] = None if path is None or "mode=memory" in str(engine.url) else str(path)
+        return found
 
 
 def files_bytes(session: Session | Connection) -> float:
     """What a SQLite database's file and its write-ahead log hold, at least the bytes it uses (its
     pages are in the file or, not yet checkpointed, in the log); infinite for other databases, or
     when the file cannot be found (the pages are counted then)."""
-    path = _file_of(_bind(session).engine.url)
+    path = _file_of(_bind(session).engine)
     if path is None:
         return math.inf
     try:
