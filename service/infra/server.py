@@ -9,6 +9,11 @@ out of file descriptors is logged once instead of once a second with a traceback
   ``body_min_rate`` bytes received (Apache's ``mod_reqtimeout`` rule: a large body sent at a
   decent rate is never cut, a trickle is). Then a 408 (if no response has started) and the
   connection closes; the handler waiting for the body sees the client gone.
+- **Send timeout.** An answer whose client reads none of it for ``send_timeout_s`` (the
+  transport's buffer stays above its high-water mark: nothing sent in that time) is cut: the
+  connection is aborted (nginx's ``send_timeout``). A client that sent requests and never read
+  held its connection, its slot under the cap and its answers' bytes in the server for ever
+  (300 pipelined ``GET /openapi.json``: 61 MB waiting in the API).
 - **Head size.** A request's line and headers take at most :data:`MAX_HEAD_BYTES` (16 KiB, h11's
   limit, which uvicorn's h11 protocol applied); a longer head is a 431 and the connection closes.
   httptools has no limit of its own: it would gather a header without end.
@@ -71,6 +76,7 @@ class Guards:
     header_timeout_s: float
     body_timeout_s: float
     body_min_rate: float
+    send_timeout_s: float = 60.0
 
 
 def fd_limit() -> int:
@@ -94,7 +100,7 @@ def guards_of(settings: Settings) -> Guards:
             fd_limit(),
             fits,
         )
-    return Guards(cap, settings.header_timeout_s, settings.body_timeout_s, float(settings.body_min_rate))
+    return Guards(cap, settings.header_timeout_s, settings.body_timeout_s, float(settings.body_min_rate), settings.send_timeout_s)
 
 
 class _Throttled:
@@ -116,6 +122,7 @@ class _Throttled:
 
 
 REFUSALS = _Throttled(60.0)
+STALLED = _Throttled(60.0)
 
 
 class GuardedProtocol(HttpToolsProtocol):
@@ -143,6 +150,7 @@ class GuardedProtocol(HttpToolsProtocol):
         self._held = False
         # one timer at a time, re-armed when it fires early: two timers a request cost 0.03 ms
         self._timer: asyncio.TimerHandle | None = None
+        self._send_timer: asyncio.TimerHandle | None = None  # armed while writing is paused
         self._head_bytes = 0  # of the head being received, before this read
         self._head_tail = b""  # its last bytes (its end may straddle two reads)
 
@@ -158,10 +166,30 @@ class GuardedProtocol(HttpToolsProtocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._phase = None
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
+        for timer in (self._timer, self._send_timer):
+            if timer is not None:
+                timer.cancel()
+        self._timer = self._send_timer = None
         super().connection_lost(exc)
+
+    def pause_writing(self) -> None:
+        super().pause_writing()
+        if self._send_timer is None:
+            self._send_timer = self.loop.call_later(self.guards.send_timeout_s, self._send_stalled)
+
+    def resume_writing(self) -> None:
+        super().resume_writing()
+        if self._send_timer is not None:
+            self._send_timer.cancel()
+            self._send_timer = None
+
+    def _send_stalled(self) -> None:
+        """The client read nothing for the send timeout: abort (a close would wait to send the rest)."""
+        self._send_timer = None
+        if self.flow.write_paused:
+            timeout = self.guards.send_timeout_s
+            STALLED.warn("cut an answer whose client read none of it in %g s (SPACEARM_SEND_TIMEOUT_S)", timeout)
+            self.transport.abort()
 
     def data_received(self, data: bytes) -> None:
         if self._close_after:
@@ -358,11 +386,13 @@ def serve(app: Any, settings: Settings, log_level: str, log_config: dict[str, An
     """Run ``app`` on ``settings.host:settings.port`` until stopped (SIGTERM, Ctrl-C)."""
     protocol = protocol_for(settings)
     log.info(
-        "HTTP guards: at most %d connections, headers within %g s, bodies within %g s + 1 s per %d bytes",
+        "HTTP guards: at most %d connections, headers within %g s, bodies within %g s + 1 s per %d bytes, "
+        "answers read within %g s",
         protocol.guards.max_connections,
         settings.header_timeout_s,
         settings.body_timeout_s,
         settings.body_min_rate,
+        settings.send_timeout_s,
     )
     config = uvicorn.Config(
         app,

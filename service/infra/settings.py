@@ -131,6 +131,12 @@ class Settings(BaseSettings):
     body_min_rate: int = Field(
         default=10_000, ge=1, le=1 << 30, description="bytes per second a slow body must keep up beyond body_timeout_s"
     )
+    send_timeout_s: float = Field(
+        default=60.0,
+        gt=0,
+        le=3600,
+        description="time an answer may wait for a client that reads none of it (the server's send buffer full)",
+    )
     cors_origins: str = Field(
         default="",
         max_length=10_000,

@@ -2,8 +2,9 @@
 under way, on a small app of their own served in this process by uvicorn with the guards' protocol
 and 2 s header and body timeouts: an answer sent before the body was read, a pipelined request
 queued behind two slow answers, and a large body pipelined behind a streamed answer. Each case is one
-a review of the move to httptools found broken; then a refusal behind an answer under way, and a
-body the server has not asked for yet (``Expect: 100-continue``)."""
+a review of the move to httptools found broken; then a refusal behind an answer under way, a body
+the server has not asked for yet (``Expect: 100-continue``), and an answer its client does not read
+(2 s send timeout)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import pytest
 import uvicorn
 from starlette.applications import Starlette
 from starlette.requests import Request
-from starlette.responses import PlainTextResponse, StreamingResponse
+from starlette.responses import PlainTextResponse, Response, StreamingResponse
 from starlette.routing import Route
 
 from service.infra.server import protocol_for
@@ -44,6 +45,13 @@ async def echo(request: Request) -> PlainTextResponse:
     return PlainTextResponse(f"got {len(await request.body())}")
 
 
+BIG = 32 * 2**20
+
+
+async def big(request: Request) -> Response:
+    return Response(b"x" * BIG, media_type="application/octet-stream")
+
+
 async def late_read(request: Request) -> PlainTextResponse:
     await asyncio.sleep(float(request.query_params["s"]))
     return await echo(request)
@@ -52,6 +60,7 @@ async def late_read(request: Request) -> PlainTextResponse:
 APP = Starlette(
     routes=[
         Route("/slow", slow),
+        Route("/big", big),
         Route("/stream", stream),
         Route("/echo", echo, methods=["POST"]),
         Route("/late-read", late_read, methods=["POST"]),
@@ -62,7 +71,7 @@ APP = Starlette(
 @pytest.fixture(scope="module")
 def port() -> Iterator[int]:
     chosen = free_port()
-    settings = Settings(header_timeout_s=2, body_timeout_s=2, body_min_rate=1000)
+    settings = Settings(header_timeout_s=2, body_timeout_s=2, body_min_rate=1000, send_timeout_s=2)
     config = uvicorn.Config(
         APP, host="127.0.0.1", port=chosen, http=protocol_for(settings), loop="asyncio", log_level="warning", timeout_keep_alive=3
     )
@@ -147,3 +156,20 @@ def test_a_body_is_timed_from_when_the_server_asks_for_it(port: int, asked_after
         while b"got" not in answer and (chunk := sock.recv(65536)):
             answer += chunk
     assert answer.startswith(b"HTTP/1.1 200") and b"got 5" in answer, answer
+
+
+def test_an_answer_nobody_reads_is_cut_after_the_send_timeout(port: int) -> None:
+    """A 32 MiB answer to a client that reads none of it for 5 s (a 4 kB receive buffer): the
+    connection stayed open, the answer held in the server, for as long as the client waited; it is
+    aborted once nothing went out for 2 s. A client that reads gets it whole."""
+    with socket.socket() as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        sock.connect(("127.0.0.1", port))
+        sock.sendall(b"GET /big HTTP/1.1\r\nHost: x\r\n\r\n")
+        time.sleep(5.0)
+        answer, closed = _until_closed(sock, 10.0)
+    assert answer.startswith(b"HTTP/1.1 200") and len(answer) < BIG and closed is not None, (len(answer), closed)
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(b"GET /big HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        answer, closed = _until_closed(sock, 30.0)
+    assert len(answer) > BIG and answer.endswith(b"x" * 1000) and closed is not None, (len(answer), closed)
