@@ -40,6 +40,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import QueuePool
 
 from service.infra import jsonio
+from service.infra.checkpoint import BACKSTOP_PAGES
 from service.infra.loop import HandOff, on_event_loop
 from service.infra.reserve import DiskReserve
 
@@ -202,7 +203,8 @@ def make_engine(
 ) -> Engine:
     """An engine for ``url``. SQLite: ``create`` lets connecting create the file and makes DDL
     transactional (for migrations); ``busy_timeout_ms`` only applies to SQLite;
-    ``background_checkpoints``: commits leave the WAL to a :class:`service.infra.checkpoint.Checkpointer`.
+    ``background_checkpoints``: commits leave the WAL to a :class:`service.infra.checkpoint.Checkpointer`
+    up to :data:`~service.infra.checkpoint.BACKSTOP_PAGES`.
     The pool's size, overflow and timeout apply to every database."""
     ensure_sqlite_dir(url)
     parsed = make_url(url)
@@ -242,7 +244,7 @@ def make_engine(
             cursor.execute("PRAGMA foreign_keys=ON")
             cursor.execute("PRAGMA synchronous=NORMAL")
             if background_checkpoints:
-                cursor.execute("PRAGMA wal_autocheckpoint=0")
+                cursor.execute(f"PRAGMA wal_autocheckpoint={BACKSTOP_PAGES}")
             cursor.close()
 
         if create:

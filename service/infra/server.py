@@ -9,9 +9,10 @@ out of file descriptors is logged once instead of once a second with a traceback
   ``body_min_rate`` bytes received (Apache's ``mod_reqtimeout`` rule: a large body sent at a
   decent rate is never cut, a trickle is). Then a 408 (if no response has started) and the
   connection closes; the handler waiting for the body sees the client gone.
-- **Send timeout.** An answer whose client reads none of it for ``send_timeout_s`` (the
-  transport's buffer stays above its high-water mark: nothing sent in that time) is cut: the
-  connection is aborted (nginx's ``send_timeout``). A client that sent requests and never read
+- **Send timeout.** An answer whose client reads nothing of it for ``send_timeout_s`` (writing
+  paused, and the transport's buffer no smaller than ``send_timeout_s`` before) is cut: the
+  connection is aborted (nginx's ``send_timeout``: the time between two successive writes, not
+  for the whole answer). A client that sent requests and never read
   held its connection, its slot under the cap and its answers' bytes in the server for ever
   (300 pipelined ``GET /openapi.json``: 61 MB waiting in the API).
 - **Head size.** A request's line and headers take at most :data:`MAX_HEAD_BYTES` (16 KiB, h11's
@@ -151,6 +152,7 @@ class GuardedProtocol(HttpToolsProtocol):
         # one timer at a time, re-armed when it fires early: two timers a request cost 0.03 ms
         self._timer: asyncio.TimerHandle | None = None
         self._send_timer: asyncio.TimerHandle | None = None  # armed while writing is paused
+        self._send_left = 0  # bytes the transport held when the send timer was armed
         self._head_bytes = 0  # of the head being received, before this read
         self._head_tail = b""  # its last bytes (its end may straddle two reads)
 
@@ -175,7 +177,7 @@ class GuardedProtocol(HttpToolsProtocol):
     def pause_writing(self) -> None:
         super().pause_writing()
         if self._send_timer is None:
-            self._send_timer = self.loop.call_later(self.guards.send_timeout_s, self._send_stalled)
+            self._arm_send_timer()
 
     def resume_writing(self) -> None:
         super().resume_writing()
@@ -183,13 +185,24 @@ class GuardedProtocol(HttpToolsProtocol):
             self._send_timer.cancel()
             self._send_timer = None
 
+    def _arm_send_timer(self) -> None:
+        self._send_left = self.transport.get_write_buffer_size()
+        self._send_timer = self.loop.call_later(self.guards.send_timeout_s, self._send_stalled)
+
     def _send_stalled(self) -> None:
-        """The client read nothing for the send timeout: abort (a close would wait to send the rest)."""
+        """Writing stayed paused for the send timeout: if the client read some of the answer
+        meanwhile (the buffer shrank; a whole answer is written at once, so it stays above the
+        low-water mark until nearly all of it is out), time it again; else abort (a close would
+        wait to send the rest)."""
         self._send_timer = None
-        if self.flow.write_paused:
-            timeout = self.guards.send_timeout_s
-            STALLED.warn("cut an answer whose client read none of it in %g s (SPACEARM_SEND_TIMEOUT_S)", timeout)
-            self.transport.abort()
+        if not self.flow.write_paused:
+            return
+        if self.transport.get_write_buffer_size() < self._send_left:
+            self._arm_send_timer()
+            return
+        timeout = self.guards.send_timeout_s
+        STALLED.warn("cut an answer whose client read nothing of it for %g s (SPACEARM_SEND_TIMEOUT_S)", timeout)
+        self.transport.abort()
 
     def data_received(self, data: bytes) -> None:
         if self._close_after:

@@ -135,7 +135,7 @@ class Settings(BaseSettings):
         default=60.0,
         gt=0,
         le=3600,
-        description="time an answer may wait for a client that reads none of it (the server's send buffer full)",
+        description="time an answer may wait for a client that reads nothing of it (the server's send buffer full)",
     )
     cors_origins: str = Field(
         default="",

@@ -1,6 +1,7 @@
 """WAL checkpoints off the request path (:mod:`service.infra.checkpoint`): the API's commits leave
 the log to the checkpoint thread, which copies it into the database file whenever it changed, and
-says once (not at every look) when it cannot."""
+says once (not at every look) when it cannot; past a backstop the commits checkpoint, so that the
+log starts over under a steady stream of commits."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import text
 
 from service.app import create_app
-from service.infra.checkpoint import Checkpointer
+from service.infra.checkpoint import BACKSTOP_PAGES, Checkpointer
 from service.infra.db import Database
 from service.infra.migrate import upgrade
 from service.infra.settings import Settings
@@ -67,6 +68,24 @@ def test_the_apis_commits_leave_checkpoints_to_the_thread(tmp_path: Path) -> Non
     assert sizes[False] <= 1.1 * AUTOCHECKPOINT_BYTES < 1.3 * AUTOCHECKPOINT_BYTES < sizes[True]
 
 
+def test_the_log_starts_over_under_a_steady_stream_of_commits(tmp_path: Path) -> None:
+    """1,600 commits of 5 pages while the thread checkpoints every 10 ms: every checkpoint ended
+    with new frames appended during it, SQLite never started the log over, and it grew by all of
+    them (33 MB); the commits' backstop keeps it under its 4,000 pages."""
+    path = tmp_path / "steady.db"
+    new_database(path)
+    db = Database(f"sqlite:///{path}", background_checkpoints=True)
+    checkpointer = Checkpointer(path, interval_s=0.01)
+    checkpointer.start()
+    try:
+        write(db, 1600)
+        largest = path.with_name(path.name + "-wal").stat().st_size  # a log file never shrinks while open
+    finally:
+        checkpointer.stop()
+        db.dispose()
+    assert largest <= 1.1 * BACKSTOP_PAGES * (PAGE + 24), largest
+
+
 def test_a_checkpoint_that_fails_is_said_once_and_tried_again(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     path = tmp_path / "gone.db"
     new_database(path)
@@ -95,7 +114,7 @@ def test_the_api_runs_the_thread_and_its_connections_do_not_checkpoint(tmp_path:
         wait_for(app.state.kernels.ready.is_set, timeout=300)
         assert "wal-checkpoint" in {t.name for t in threading.enumerate()}
         with app.state.db.engine.connect() as conn:
-            assert conn.exec_driver_sql("PRAGMA wal_autocheckpoint").scalar() == 0
+            assert conn.exec_driver_sql("PRAGMA wal_autocheckpoint").scalar() == BACKSTOP_PAGES
         body = {"robot_id": "table1", "task": PAPER_TASK, "method": {"name": "adaptive"}, "replay": False}
         assert client.post("/v1/plans", json=body).status_code == 201
     assert "wal-checkpoint" not in {t.name for t in threading.enumerate()}

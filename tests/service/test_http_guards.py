@@ -173,3 +173,20 @@ def test_an_answer_nobody_reads_is_cut_after_the_send_timeout(port: int) -> None
         sock.sendall(b"GET /big HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
         answer, closed = _until_closed(sock, 30.0)
     assert len(answer) > BIG and answer.endswith(b"x" * 1000) and closed is not None, (len(answer), closed)
+
+
+def test_an_answer_read_slowly_is_not_cut(port: int) -> None:
+    """The 32 MiB answer read at about 5 MB/s, some 6 s against the 2 s send timeout: it comes
+    whole (it was cut after 2 s: the timeout counted from the first pause of writing, and a whole
+    answer written at once keeps writing paused until nearly all of it is out)."""
+    with socket.socket() as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 65536)
+        sock.connect(("127.0.0.1", port))
+        sock.sendall(b"GET /big HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        sock.settimeout(10.0)
+        start, received, tail = time.monotonic(), 0, b""
+        while chunk := sock.recv(65536):
+            received += len(chunk)
+            tail = (tail + chunk)[-1000:]
+            time.sleep(max(0.0, received / 5e6 - (time.monotonic() - start)))
+    assert received > BIG and tail == b"x" * 1000 and time.monotonic() - start > 4.0, received
