@@ -87,15 +87,17 @@ def loop_callees(robot: RobotModel) -> list[tuple[Any, tuple[Any, ...]]]:
     16 and 17 s after the start, 2026-11-29), sooner than the tools part can have compiled all
     four (18 s): the SVD, the quickest (2 s), comes last, so that the planner part compiles that
     one itself and loads the other three (with it second, the dynamics came 1 s late and the
-    planner part compiled them, 4 s: a cold compilation of 34 s instead of 31)."""
+    planner part compiled them, 4 s: a cold compilation of 34 s instead of 31). The loop calls
+    them by symbol (:func:`engine.kernels.jit.unlinked`): their code is not generated again in
+    the loop's."""
     n = robot.n_joints
     array1, array2 = typeof(np.zeros(1)), typeof(np.zeros((1, 1)))
     return [
         (geometry_kernels.shape_distance, (array1, array1, array2, typeof(geometry_kernels.gjk_buffers.py_func()), array2)),
         (
             qp_kernels.dls_qp,
-            # the loop passes max_iter as the constant 0, which numba types as the literal
-            (array2, array1, array2, array1, types.float64, array1, array1, array1, array2, array1, types.literal(0))
+            # the loop passes max_iter 0 in unlinked's argument tuple, where numba types it int64
+            (array2, array1, array2, array1, types.float64, array1, array1, array1, array2, array1, types.int64)
             + (typeof(qp_kernels.qp_buffers.py_func(n, 0)),),
         ),
         (

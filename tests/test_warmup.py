@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import gc
 import json
+import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -18,7 +20,7 @@ from engine import make_inverse, paper_task, plan
 from engine.executed import executed_trajectory
 from engine.kernels import spline
 from engine.kernels.cache import HERE as KERNELS_DIR
-from engine.kernels.cache import marker_path
+from engine.kernels.cache import marker_path, source_hash
 from engine.kernels.jit import CACHE_DIR, KERNELS
 from engine.model import table1_robot
 from engine.warmup import (
@@ -173,6 +175,41 @@ def test_llvms_library_pages_are_released_after_the_warm_up_and_come_back_when_n
     kept = {start: rss for start, _, rss, anonymous in out["after_compiling"] if anonymous}
     assert kept and kept == {start: rss for start, _, rss, anonymous in out["after_release"] if anonymous}
     assert out["value"] == 4.0
+    model = table1_robot()
+    assert out["q_end"] == plan(model, paper_task(model), make_inverse("adaptive")).q[-1].tolist()
+
+
+UNLINKED_SCRIPT = """
+import itertools, json
+import numba.core.bytecode
+numba.core.bytecode.FunctionIdentity._unique_ids = itertools.count(10**6)  # symbols unlike the cache's
+from engine import make_inverse, paper_task, plan, table1_robot
+from engine.kernels import plan as plan_kernels, qp, svd
+before = [len(k.overloads) for k in (svd.jacobi_svd, qp.dls_qp)]
+model = table1_robot()
+q_end = plan(model, paper_task(model), make_inverse("adaptive")).q[-1].tolist()
+print(json.dumps(dict(before=before, svd_compiled=sum(svd.jacobi_svd.stats.cache_misses.values()),
+                      loop_loaded=sum(plan_kernels.simulate.stats.cache_hits.values()), q_end=q_end)))
+"""
+
+
+def test_the_loop_loaded_from_the_cache_calls_its_unlinked_callees(tmp_path: Path) -> None:
+    """The step loop calls its largest callees by symbol (``engine.kernels.jit.unlinked``). In a
+    process that loads it from the cache and has loaded none of them, with the SVD's cache entry
+    lost (compiled again there, under a symbol of that process), the loop loads them first and
+    calls the SVD compiled there: the plan is the same (the call jumped to nothing, a segfault)."""
+    warm_up()  # the cache is complete
+    cache = tmp_path / "numba"
+    shutil.copytree(CACHE_DIR, cache / f"spacearm-{source_hash()}")
+    lost = [path for path in cache.rglob("svd.jacobi_svd-*") if path.is_file()]
+    assert lost
+    for path in lost:
+        path.unlink()
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    run = subprocess.run([sys.executable, "-c", UNLINKED_SCRIPT], capture_output=True, text=True, timeout=600, env=env)
+    assert run.returncode == 0, (run.returncode, run.stderr[-3000:])
+    out = json.loads(run.stdout.strip().splitlines()[-1])
+    assert out["before"] == [0, 0] and out["svd_compiled"] == 1 and out["loop_loaded"] == 1, out
     model = table1_robot()
     assert out["q_end"] == plan(model, paper_task(model), make_inverse("adaptive")).q[-1].tolist()
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.kernels.jit import kernel
+from engine.kernels.jit import kernel, unlinked
 
 # Columns of a shape row.
 BODY, KIND, RADIUS, POS, ROT, DIMS, BOUND = 0, 1, 2, 3, 6, 15, 18
@@ -1001,7 +1001,7 @@ def sample_distances(pairs, vertices, cutoff, clearance, dt, first, refine, buf)
         dist[p] = bound
         exact[p] = 0.0
         if bound < cutoff or bound < clearance + step_speed[p] * dt:
-            d = shape_distance(posed[pairs[p, 0]], posed[pairs[p, 1]], vertices, gjk, witness[p])
+            d = unlinked(shape_distance, (posed[pairs[p, 0]], posed[pairs[p, 1]], vertices, gjk, witness[p]))
             dist[p] = d
             exact[p] = 1.0
             if d < best:
@@ -1014,7 +1014,7 @@ def sample_distances(pairs, vertices, cutoff, clearance, dt, first, refine, buf)
                 nearest = p
         if nearest < 0:
             break
-        d = shape_distance(posed[pairs[nearest, 0]], posed[pairs[nearest, 1]], vertices, gjk, witness[nearest])
+        d = unlinked(shape_distance, (posed[pairs[nearest, 0]], posed[pairs[nearest, 1]], vertices, gjk, witness[nearest]))
         dist[nearest] = d
         exact[nearest] = 1.0
         if d < best:

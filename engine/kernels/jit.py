@@ -6,19 +6,22 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import functools
+import importlib
 import mmap
 import os
 import re
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numba
 from llvmlite import binding as llvm
 from numba import njit
+from numba.core.extending import intrinsic
 
 from engine.kernels.cache import cache_dir, source_hash
 
-__all__ = ["CACHE_DIR", "kernel", "park_linking_modules", "source_hash"]
+__all__ = ["CACHE_DIR", "kernel", "park_linking_modules", "source_hash", "unlinked"]
 
 CACHE_DIR = cache_dir()
 numba.config.CACHE_DIR = str(CACHE_DIR)  # type: ignore[attr-defined]  # read by each kernel's cache when decorated
@@ -41,15 +44,71 @@ def kernel(fn: Callable[..., Any] | None = None, *, inline: bool = False) -> Any
     inlines there (its IR, typed in the caller), instead of compiling it alone and linking it in.
     numba runs LLVM's optimisation and code generation on every compiled function together with
     all it links, so each level of calls pays again for the levels below it; an inlined level
-    does not. Called from Python (tests), it compiles alone as any kernel. Only small functions:
-    numba copies an inlined function's IR block by block, each block's copy with the whole scope,
-    so the cost grows as blocks times variables (the step loop's body, 300 blocks and 3,300 variables,
-    took 4.4 s of a cold compilation when it was an inlined kernel of its own)."""
+    does not (nor does a large callee called by symbol, :func:`unlinked`). Called from Python
+    (tests), it compiles alone as any kernel. Only small functions: numba copies an inlined
+    function's IR block by block, each block's copy with the whole scope, so the cost grows as
+    blocks times variables (the step loop's body, 300 blocks and 3,300 variables, took 4.4 s of a
+    cold compilation when it was an inlined kernel of its own)."""
     if fn is None:
         return functools.partial(kernel, inline=inline)
     dispatcher = njit(cache=True, nogil=True, error_model="numpy", inline="always" if inline else "never")(fn)
     KERNELS.append(dispatcher)
     return dispatcher
+
+
+@dataclass(frozen=True)
+class _LoadCallee:
+    """Load (or compile) ``module.name`` for ``argtypes`` and make ``symbol`` name it: run by numba
+    before it loads from the cache a kernel that calls that one :func:`unlinked` (pickled with the
+    kernel, numba's ``reload_init``), so that the call is linked to the callee's machine code (else
+    it jumps to nothing). A callee compiled again (another process of ``spacearm compile`` wrote
+    the cache's copy last, or its cache entry was lost) has a symbol of its own, since numba's
+    symbols carry a number counted per process: ``symbol`` is then added to LLVM's symbols."""
+
+    module: str
+    name: str
+    argtypes: tuple[Any, ...]
+    symbol: str
+
+    def __call__(self) -> None:
+        dispatcher = getattr(importlib.import_module(self.module), self.name)
+        dispatcher.compile(self.argtypes)
+        result = dispatcher.overloads[self.argtypes]
+        if result.fndesc.mangled_name != self.symbol:
+            address = result.library.get_pointer_to_function(result.fndesc.mangled_name)
+            if not address:
+                raise RuntimeError(f"{self.module}.{self.name}{self.argtypes}: no machine code to call")
+            llvm.add_symbol(self.symbol, address)
+
+
+@intrinsic
+def _unlinked(typingctx: Any, callee: Any, args: Any) -> Any:
+    """``unlinked(kernel, (a, b, ...))`` in a kernel: ``kernel(a, b, ...)``, called by its symbol
+    instead of linked in. numba links a callee's LLVM module into its caller's and optimises and
+    generates code for the whole again, so a large callee costs every caller its compilation once
+    more: the step loop's final module was 67,000 instructions after optimisation, 10,000 of them
+    its own, and took 6.9 s of LLVM (the SVD, the QP, the dynamics and the distance again). Called
+    by symbol, the callee's code is the one its own compilation made; a kernel loaded from the
+    cache first loads the callee (:class:`_LoadCallee`)."""
+    sig = typingctx.resolve_function_type(callee, tuple(args.types), {})
+    if sig is None:
+        return None
+    dispatcher = callee.dispatcher
+
+    def codegen(context: Any, builder: Any, signature: Any, llargs: Any) -> Any:
+        result = dispatcher.get_compile_result(sig)
+        fn = dispatcher.py_func
+        loader = _LoadCallee(fn.__module__, fn.__qualname__, tuple(result.signature.args), result.fndesc.mangled_name)
+        context.active_code_library._reload_init.add(loader)
+        items = [builder.extract_value(llargs[1], i) for i in range(len(args.types))]
+        return context.call_internal(builder, result.fndesc, result.signature, items)
+
+    return sig.return_type(callee, args), codegen
+
+
+#: :func:`_unlinked` as kernels call it, ``unlinked(kernel, (a, b, ...))`` (numba supplies the
+#: typing context).
+unlinked: Any = _unlinked
 
 
 def park_linking_modules() -> int:

@@ -81,7 +81,7 @@ from engine.kernels.geometry import (
     shape_distance,
 )
 from engine.kernels.inverse import BOUNDED, apply_inverse
-from engine.kernels.jit import kernel
+from engine.kernels.jit import kernel, unlinked
 from engine.kernels.linalg import det3, det6
 from engine.kernels.qp import INVALID, V_QD, dls_qp, qp_buffers
 from engine.kernels.redundancy import CLEARANCE, NONE, null_space_step
@@ -283,7 +283,7 @@ def bound_rates(ch, q, dt, speed_limit, U, s, V, damping, lam, xdot, qd, shift, 
         for j in range(n):
             acc -= C[r, j] * shift[j]
         d_shifted[r] = acc
-    status, _ = dls_qp(U, s, V, damping, lam, xdot, lo, hi, C[:m_rows], d_shifted[:m_rows], 0, qp_buf)
+    status, _ = unlinked(dls_qp, (U, s, V, damping, lam, xdot, lo, hi, C[:m_rows], d_shifted[:m_rows], 0, qp_buf))
     rate_box(ch, q, dt, speed_limit, lo, hi)
     solution = qp_buf[2][V_QD]
     for j in range(n):
@@ -335,7 +335,7 @@ def distance_at(ch, shapes, vertices, a, b, q0, qd, A0, com_w, s, cbuf, work):
         advance(ch, q0, qd, s, A_s, kin, g, kin_m, g_m, q_s, adv)  # kin and g now of q0 + s qd
     pose_into(shapes, a, kin[0], kin[1], A_s, com_w, posed2, np.int64(0))
     pose_into(shapes, b, kin[0], kin[1], A_s, com_w, posed2, np.int64(1))
-    d = shape_distance(posed2[0], posed2[1], vertices, gjk, witness2)
+    d = unlinked(shape_distance, (posed2[0], posed2[1], vertices, gjk, witness2))
     joint_reach(posed2, slide, kin, reach)
     pair_speeds(posed2, one_pair, reach, g[1], qd, speed)
     return d, speed[0]
@@ -412,8 +412,8 @@ def _dynamics_metrics(ch, dt, N, run, end_rate, dyn, record, metrics):
     """The executed trajectory's dynamics of a finite plan (``run``) into ``dyn`` and their
     peaks into ``metrics``; without ``run`` the recorded rows are NaN and the peaks unknown."""
     if run and N >= 1:
-        ok, peak, peak_joint, peak_lin, peak_lin_joint, over, t_over, over_peak = trajectory_dynamics(
-            ch, dt, N + 1, end_rate, dyn, record
+        ok, peak, peak_joint, peak_lin, peak_lin_joint, over, t_over, over_peak = unlinked(
+            trajectory_dynamics, (ch, dt, N + 1, end_rate, dyn, record)
         )
         metrics[MAX_TORQUE] = peak if ok else np.nan
         metrics[MAX_TORQUE_JOINT] = peak_joint
@@ -696,7 +696,7 @@ def simulate(
             for r in range(3):
                 xdot_b[r] = A0[0, r] * xdot_w[0] + A0[1, r] * xdot_w[1] + A0[2, r] * xdot_w[2]
                 xdot_b[r + 3] = A0[0, r] * xdot_w[3] + A0[1, r] * xdot_w[4] + A0[2, r] * xdot_w[5]
-            ok, _ = jacobi_svd(J_b, sv, k % REFRESH_EVERY == 0)
+            ok, _ = unlinked(jacobi_svd, (J_b, sv, k % REFRESH_EVERY == 0))
             s = sv[2]
             if replaying:
                 ok = True
