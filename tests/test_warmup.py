@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -212,6 +213,62 @@ def test_the_loop_loaded_from_the_cache_calls_its_unlinked_callees(tmp_path: Pat
     assert out["before"] == [0, 0] and out["svd_compiled"] == 1 and out["loop_loaded"] == 1, out
     model = table1_robot()
     assert out["q_end"] == plan(model, paper_task(model), make_inverse("adaptive")).q[-1].tolist()
+
+
+LINKED_KERNELS = """
+import numpy as np
+from engine.kernels.jit import kernel, unlinked
+
+@kernel
+def callee(a, k):
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * k
+    return s
+
+@kernel
+def middle(a):  # not inlined: a kernel that a caller links in
+    return unlinked(callee, (a, 2.0)) + 1.0
+
+@kernel
+def outer(a):
+    return middle(a) * 10.0
+"""
+
+LINKED_STEP = """
+import itertools, json, sys
+import numba.core.bytecode
+numba.core.bytecode.FunctionIdentity._unique_ids = itertools.count(int(sys.argv[1]))  # symbols of this process
+import numpy as np
+import linked
+a = np.arange(4.0)
+if sys.argv[2] == "middle":
+    value = linked.middle(a)
+else:
+    value = linked.outer(a)
+loaded = {k.py_func.__name__: sum(k.stats.cache_hits.values()) for k in (linked.callee, linked.middle, linked.outer)}
+print(json.dumps(dict(value=value, loaded=loaded)))
+"""
+
+
+def test_a_kernel_linked_in_after_a_cache_load_keeps_its_callees_loaders(tmp_path: Path) -> None:
+    """A kernel that calls another :func:`~engine.kernels.jit.unlinked` and is linked into a caller
+    compiled in a later process, which loaded it from the cache: numba gives a loaded library no
+    ``reload_init``, so the caller's cache entry had no loader for the callee, and a third process
+    that loaded the caller first (the callee's entry lost) called nothing (a segfault)."""
+    (tmp_path / "linked.py").write_text(LINKED_KERNELS)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"), "PYTHONPATH": f"{tmp_path}{os.pathsep}{Path.cwd()}"}
+
+    def step(first_uid: int, entry: str) -> dict[str, Any]:
+        run = subprocess.run([sys.executable, "-c", LINKED_STEP, str(first_uid), entry], capture_output=True, text=True, env=env)
+        assert run.returncode == 0, (entry, run.returncode, run.stderr[-3000:])
+        return json.loads(run.stdout.strip().splitlines()[-1])
+
+    assert step(1, "middle") == {"value": 13.0, "loaded": {"callee": 0, "middle": 0, "outer": 0}}
+    assert step(10**5, "outer")["loaded"] == {"callee": 1, "middle": 1, "outer": 0}  # middle loaded, outer compiled
+    for path in (tmp_path / "numba").rglob("linked.callee-*"):
+        path.unlink()  # compiled again below, under a symbol of that process
+    assert step(10**6, "outer") == {"value": 130.0, "loaded": {"callee": 0, "middle": 0, "outer": 1}}
 
 
 def _records() -> dict[str, dict[str, list[str]]]:

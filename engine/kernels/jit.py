@@ -52,8 +52,19 @@ def kernel(fn: Callable[..., Any] | None = None, *, inline: bool = False) -> Any
     if fn is None:
         return functools.partial(kernel, inline=inline)
     dispatcher = njit(cache=True, nogil=True, error_model="numpy", inline="always" if inline else "never")(fn)
+    dispatcher.add_overload = functools.partial(_add_overload, dispatcher.add_overload)  # type: ignore[method-assign]
     KERNELS.append(dispatcher)
     return dispatcher
+
+
+def _add_overload(add: Callable[[Any], None], result: Any) -> None:
+    """numba's ``Dispatcher.add_overload``, with the library of a kernel loaded from the cache given
+    back its ``reload_init`` (numba keeps it on the compile result only): a caller compiled later
+    links the library and inherits the library's, so it carries the loaders of the
+    :func:`unlinked` callees it calls through that library."""
+    if result.reload_init:
+        result.library._reload_init.update(result.reload_init)
+    add(result)
 
 
 @dataclass(frozen=True)
@@ -68,12 +79,18 @@ class _LoadCallee:
     module: str
     name: str
     argtypes: tuple[Any, ...]
+    restype: Any
     symbol: str
 
     def __call__(self) -> None:
         dispatcher = getattr(importlib.import_module(self.module), self.name)
         dispatcher.compile(self.argtypes)
         result = dispatcher.overloads[self.argtypes]
+        if result.signature.return_type != self.restype:
+            raise RuntimeError(
+                f"{self.module}.{self.name}{self.argtypes} returns {result.signature.return_type}, its caller in the "
+                f"kernel cache expects {self.restype}: delete the kernel cache ({CACHE_DIR})"
+            )
         if result.fndesc.mangled_name != self.symbol:
             address = result.library.get_pointer_to_function(result.fndesc.mangled_name)
             if not address:
@@ -91,17 +108,19 @@ def _unlinked(typingctx: Any, callee: Any, args: Any) -> Any:
     by symbol, the callee's code is the one its own compilation made; a kernel loaded from the
     cache first loads the callee (:class:`_LoadCallee`)."""
     sig = typingctx.resolve_function_type(callee, tuple(args.types), {})
-    if sig is None:
+    if sig is None or tuple(sig.args) != tuple(args.types):  # the call passes the values as they are
         return None
     dispatcher = callee.dispatcher
 
     def codegen(context: Any, builder: Any, signature: Any, llargs: Any) -> Any:
         result = dispatcher.get_compile_result(sig)
         fn = dispatcher.py_func
-        loader = _LoadCallee(fn.__module__, fn.__qualname__, tuple(result.signature.args), result.fndesc.mangled_name)
+        signature = result.signature
+        symbol = result.fndesc.mangled_name
+        loader = _LoadCallee(fn.__module__, fn.__qualname__, tuple(signature.args), signature.return_type, symbol)
         context.active_code_library._reload_init.add(loader)
         items = [builder.extract_value(llargs[1], i) for i in range(len(args.types))]
-        return context.call_internal(builder, result.fndesc, result.signature, items)
+        return context.call_internal(builder, result.fndesc, signature, items)
 
     return sig.return_type(callee, args), codegen
 
