@@ -2,7 +2,7 @@
 
 numba compiles a kernel on its first call and keeps the machine code in its on-disk cache
 (``NUMBA_CACHE_DIR``, or ``__pycache__`` beside the kernels); a process that starts with a warm
-cache loads the kernels in under a second, a cold one compiles them (35 s to a minute). The API
+cache loads the kernels in under a second, a cold one compiles them (30 s to a minute). The API
 and the workers call :func:`warm_up` at start-up so that no user request pays for it.
 
 The kernels fall into :data:`PARTS`, so a cold cache is filled by one process per part at once

@@ -150,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--ready-timeout",
         type=float,
         default=600.0,
-        help="seconds to wait for /readyz before giving up (default: 600; the first run compiles the kernels, 35 s to a minute)",
+        help="seconds to wait for /readyz before giving up (default: 600; the first run compiles the kernels, 30 s to a minute)",
     )
 
     p = sub.add_parser(
@@ -217,7 +217,7 @@ def compile_command(force: bool, say: Say) -> int:
         return 0
     say(
         f"compiling the engine's kernels for this CPU into {CACHE_DIR} (once per install, upgrade or CPU; "
-        f"35 s to a minute on 2 cores), {len(PARTS)} parts at once",
+        f"30 s to a minute on 2 cores), {len(PARTS)} parts at once",
         False,
     )
 
