@@ -96,6 +96,9 @@ class Checkpointer(threading.Thread):
         self._seen: tuple[int, int] | None = None
         self._failing: str | None = None
         self.restarts = 0  # RESTART checkpoints that got their locks
+        # the log's frames from which the next RESTART is tried: after one that waited for readers
+        # in vain, only once the log has grown as much again (the writers waited 50 ms for it)
+        self._restart_at = RESTART_FRAMES
 
     def _log_state(self) -> tuple[int, int] | None:
         try:
@@ -110,7 +113,7 @@ class Checkpointer(threading.Thread):
         if state is None or state == self._seen:
             return False
         try:
-            busy, frames, copied, restarted = checkpoint(self.path, RESTART_FRAMES)
+            busy, frames, copied, restarted = checkpoint(self.path, self._restart_at)
         except sqlite3.Error as exc:  # a missing or read-only file, a full disk: the next look tries again
             if self._failing != str(exc):
                 log.warning("WAL checkpoint of %s failed: %s", self.path, exc)
@@ -118,6 +121,10 @@ class Checkpointer(threading.Thread):
             return False
         self._failing = None
         self.restarts += restarted
+        if restarted or frames < self._restart_at - RESTART_FRAMES:  # the log starts (or started) over
+            self._restart_at = RESTART_FRAMES
+        elif not busy and copied >= frames >= self._restart_at:  # tried, and readers held the log
+            self._restart_at = frames + RESTART_FRAMES
         # busy (another process checkpointing) or incomplete (a reader holds older pages): again next time
         if not busy and copied >= frames:
             self._seen = state
