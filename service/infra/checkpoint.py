@@ -10,14 +10,11 @@ machine's ext4 (3,000 commits of a 28 kB row): a median commit of 42 µs, a mean
 So a :class:`Checkpointer` thread checkpoints, on a connection of its own, whenever the log has
 changed since it last looked (every ``interval_s``): a ``PASSIVE`` checkpoint, which waits for no
 lock and blocks no writer (SQLite releases the GIL meanwhile). The API's connections checkpoint
-only past :data:`BACKSTOP_PAGES` (``PRAGMA wal_autocheckpoint``, :func:`service.infra.db.make_engine`).
-SQLite starts the log over only when a write begins with every frame copied, which a checkpoint
-running beside a steady stream of commits never leaves (the log grew by 30 MB a second at 700
-commits a second): past :data:`RESTART_FRAMES` the thread has it start over itself (``RESTART``),
-and the commits' backstop catches what that misses (a commit past it copies what the thread has
-not, little, but with an fsync of both files: 13 ms at most in 6 s at 350 commits a second, 0.7 ms
-with the thread's restarts, 17 of 2,014 commits then finding the lock taken). Measured with
-`sqlite3` alone, 6 s of 28 kB commits at 650 a second:
+only past :data:`BACKSTOP_PAGES` (``PRAGMA wal_autocheckpoint``, :func:`service.infra.db.make_engine`),
+which a steady stream of commits reaches: SQLite starts the log over only when a write begins with
+every frame copied, which a checkpoint running beside the commits never leaves (without the
+backstop the log grew by 30 MB a second at 700 commits a second). A commit past it copies what the
+thread has not, little. Measured with `sqlite3` alone, 6 s of 28 kB commits at 650 a second:
 
 | checkpoints | commit median / mean / p99 | largest log |
 |---|---|---|
@@ -25,7 +22,6 @@ with the thread's restarts, 17 of 2,014 commits then finding the lock taken). Me
 | the thread, backstop 1,000 pages | 77 / 152 / 3,609 µs | 4.2 MB |
 | the thread, backstop 4,000 pages | 77 / 117 / 164 µs | 16.6 MB |
 | the thread alone | 104 / 122 / 267 µs | 184 MB, growing |
-| the thread restarting the log past 4,000 frames, no backstop | 83 / 92 / 168 µs (47 commits found the lock taken) | 24.5 MB |
 
 The workers, whose commits are few, keep SQLite's own checkpoints; several API processes each run a
 thread (two checkpoints at once: one of them finds the other's lock and is skipped).
@@ -38,50 +34,28 @@ import os
 import sqlite3
 import threading
 from pathlib import Path
-from typing import NamedTuple
 from urllib.parse import quote
 
 log = logging.getLogger("spacearm.checkpoint")
 
 #: The API's connections checkpoint themselves past this many pages of log (16 MB).
 BACKSTOP_PAGES = 4000
-#: Past this many frames, all copied, the thread has the log start over (a ``RESTART``
-#: checkpoint): it holds the write lock for a moment and waits up to :data:`RESTART_WAIT_MS` for
-#: readers of the old log. A writer on the event loop finds the lock taken and finishes in a
-#: thread (:func:`service.infra.db.elsewhere_if_locked`); the others wait their busy timeout.
-RESTART_FRAMES = BACKSTOP_PAGES // 2
-RESTART_WAIT_MS = 50
 #: How often the thread looks at the log (s): a paper plan a millisecond writes 9 pages a
 #: millisecond, so the log stays under about 9 MB between checkpoints.
 INTERVAL_S = 0.25
 
 
-class Checkpoint(NamedTuple):
-    """What :func:`checkpoint` did: SQLite's ``busy``, log ``frames`` and ``copied`` frames of the
-    ``PASSIVE`` checkpoint, and whether a ``RESTART`` one followed and got its locks."""
-
-    busy: int
-    frames: int
-    copied: int
-    restarted: bool = False
-
-
-def checkpoint(path: Path, restart_frames: int | None = None) -> Checkpoint:
+def checkpoint(path: Path) -> tuple[int, int, int]:
     """A ``PASSIVE`` checkpoint of the SQLite database at ``path`` on a connection of its own
     (opened ``mode=rw``: never creates the file); SQLite's ``(busy, log frames, frames
-    checkpointed)``. If it copied every frame of a log of at least ``restart_frames``, then a
-    ``RESTART`` one, which has the next writer start the log over (:data:`RESTART_FRAMES`)."""
+    checkpointed)``."""
     # a second for a lock of the moment (the log starting over); the checkpoint itself waits for none
     conn = sqlite3.connect(f"file:{quote(str(path))}?mode=rw", uri=True, timeout=1.0, check_same_thread=False)
     try:
-        busy, frames, copied = (int(v) for v in conn.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone())
-        restarted = False
-        if restart_frames is not None and not busy and copied >= frames >= restart_frames:
-            conn.execute(f"PRAGMA busy_timeout={RESTART_WAIT_MS}")
-            restarted = not conn.execute("PRAGMA wal_checkpoint(RESTART)").fetchone()[0]  # busy: the backstop then
+        row = conn.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
     finally:
         conn.close()
-    return Checkpoint(busy, frames, copied, restarted)
+    return int(row[0]), int(row[1]), int(row[2])
 
 
 class Checkpointer(threading.Thread):
@@ -95,10 +69,6 @@ class Checkpointer(threading.Thread):
         self._stop_event = threading.Event()
         self._seen: tuple[int, int] | None = None
         self._failing: str | None = None
-        self.restarts = 0  # RESTART checkpoints that got their locks
-        # the log's frames from which the next RESTART is tried: after one that waited for readers
-        # in vain, only once the log has grown as much again (the writers waited 50 ms for it)
-        self._restart_at = RESTART_FRAMES
 
     def _log_state(self) -> tuple[int, int] | None:
         try:
@@ -113,18 +83,13 @@ class Checkpointer(threading.Thread):
         if state is None or state == self._seen:
             return False
         try:
-            busy, frames, copied, restarted = checkpoint(self.path, self._restart_at)
+            busy, frames, copied = checkpoint(self.path)
         except sqlite3.Error as exc:  # a missing or read-only file, a full disk: the next look tries again
             if self._failing != str(exc):
                 log.warning("WAL checkpoint of %s failed: %s", self.path, exc)
                 self._failing = str(exc)
             return False
         self._failing = None
-        self.restarts += restarted
-        if restarted or frames < self._restart_at - RESTART_FRAMES:  # the log starts (or started) over
-            self._restart_at = RESTART_FRAMES
-        elif not busy and copied >= frames >= self._restart_at:  # tried, and readers held the log
-            self._restart_at = frames + RESTART_FRAMES
         # busy (another process checkpointing) or incomplete (a reader holds older pages): again next time
         if not busy and copied >= frames:
             self._seen = state
