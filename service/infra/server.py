@@ -10,11 +10,11 @@ out of file descriptors is logged once instead of once a second with a traceback
   decent rate is never cut, a trickle is). Then a 408 (if no response has started) and the
   connection closes; the handler waiting for the body sees the client gone.
 - **Send timeout.** An answer whose client reads nothing of it for ``send_timeout_s`` (writing
-  paused, and the transport's buffer no smaller than ``send_timeout_s`` before) is cut: the
-  connection is aborted (nginx's ``send_timeout``: the time between two successive writes, not
-  for the whole answer). A client that sent requests and never read
-  held its connection, its slot under the cap and its answers' bytes in the server for ever
-  (300 pipelined ``GET /openapi.json``: 61 MB waiting in the API).
+  paused, and the transport's buffer no smaller than it was ``send_timeout_s`` before) is cut:
+  the connection is aborted (nginx's ``send_timeout``: the time between two successive writes,
+  not for the whole answer). A client that sent requests and never read held its connection, its
+  slot under the cap and its answers' bytes in the server for ever (300 pipelined
+  ``GET /openapi.json``: 61 MB waiting in the API).
 - **Head size.** A request's line and headers take at most :data:`MAX_HEAD_BYTES` (16 KiB, h11's
   limit, which uvicorn's h11 protocol applied); a longer head is a 431 and the connection closes.
   httptools has no limit of its own: it would gather a header without end.
@@ -77,7 +77,7 @@ class Guards:
     header_timeout_s: float
     body_timeout_s: float
     body_min_rate: float
-    send_timeout_s: float = 60.0
+    send_timeout_s: float
 
 
 def fd_limit() -> int:
