@@ -28,11 +28,13 @@ TITLES = {
     404: "Not Found",
     405: "Method Not Allowed",
     406: "Not Acceptable",
+    408: "Request Timeout",
     409: "Conflict",
     413: "Content Too Large",
     415: "Unsupported Media Type",
     422: "Unprocessable Content",
     429: "Too Many Requests",
+    431: "Request Header Fields Too Large",
     500: "Internal Server Error",
     503: "Service Unavailable",
     507: "Insufficient Storage",
@@ -41,11 +43,13 @@ TYPES = {
     401: "unauthorized",
     404: "not-found",
     406: "not-acceptable",
+    408: "request-timeout",
     409: "conflict",
     413: "content-too-large",
     415: "unsupported-media-type",
     422: "validation-error",
     429: "too-many-requests",
+    431: "request-head-too-large",
     500: "internal-error",
     503: "unavailable",
     507: "insufficient-storage",
@@ -147,16 +151,22 @@ def problem(
     headers: Mapping[str, str] | None = None,
     **extra: Any,
 ) -> JSONResponse:
-    body: dict[str, Any] = {
+    body = problem_body(status, detail, type_=type_, title=title)
+    if instance:
+        body["instance"] = instance
+    body.update(extra)
+    return JSONResponse(body, status_code=status, media_type=PROBLEM_JSON, headers=dict(headers) if headers else None)
+
+
+def problem_body(status: int, detail: str, *, type_: str | None = None, title: str | None = None) -> dict[str, Any]:
+    """The members every problem has: ``type`` (of :data:`TYPES` by default), ``title``, ``status``
+    and ``detail``."""
+    return {
         "type": type_ or (PROBLEM_BASE + TYPES[status] if status in TYPES else "about:blank"),
         "title": title or TITLES.get(status, "Error"),
         "status": status,
         "detail": detail,
     }
-    if instance:
-        body["instance"] = instance
-    body.update(extra)
-    return JSONResponse(body, status_code=status, media_type=PROBLEM_JSON, headers=dict(headers) if headers else None)
 
 
 def install(app: FastAPI) -> None:

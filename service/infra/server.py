@@ -49,6 +49,8 @@ from typing import Any, ClassVar
 import uvicorn
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
+from service.errors import PROBLEM_JSON, TITLES, problem_body
+from service.infra.jsonio import dumps
 from service.infra.settings import Settings
 
 log = logging.getLogger("spacearm.api")
@@ -58,11 +60,39 @@ DEFAULT_MAX_CONNECTIONS = 1000
 RESERVED_FDS = 64
 #: The listening socket's backlog, which is also how many connections asyncio accepts at a time.
 BACKLOG = 128
-REFUSED = b"HTTP/1.1 503 Service Unavailable\r\nretry-after: 1\r\nconnection: close\r\ncontent-length: 0\r\n\r\n"
-TIMED_OUT = b"HTTP/1.1 408 Request Timeout\r\nconnection: close\r\ncontent-length: 0\r\n\r\n"
-HEAD_TOO_LARGE = b"HTTP/1.1 431 Request Header Fields Too Large\r\nconnection: close\r\ncontent-length: 0\r\n\r\n"
 #: The most bytes a request's line and headers may take (with the blank line that ends them).
 MAX_HEAD_BYTES = 16 * 1024
+
+
+def canned_answer(status: int, detail: str, headers: tuple[tuple[str, str], ...] = ()) -> bytes:
+    """A whole HTTP/1.1 answer that closes the connection, with a problem+json body as every other
+    error of the API has (:func:`service.errors.problem_body`), made once: the guards answer
+    before any request reaches the app."""
+    body = dumps(problem_body(status, detail))
+    lines = [
+        f"HTTP/1.1 {status} {TITLES[status]}",
+        *(f"{name}: {value}" for name, value in headers),
+        f"content-type: {PROBLEM_JSON}",
+        "x-content-type-options: nosniff",
+        "connection: close",
+        f"content-length: {len(body)}",
+    ]
+    return "\r\n".join(lines).encode("latin-1") + b"\r\n\r\n" + body
+
+
+REFUSED = canned_answer(
+    503,
+    "the API has as many connections open as it takes (SPACEARM_MAX_CONNECTIONS): try again in a second",
+    (("retry-after", "1"),),
+)
+TIMED_OUT = canned_answer(
+    408,
+    "the request did not arrive in time: its line and headers within SPACEARM_HEADER_TIMEOUT_S, its body within "
+    "SPACEARM_BODY_TIMEOUT_S plus a second per SPACEARM_BODY_MIN_RATE bytes",
+)
+HEAD_TOO_LARGE = canned_answer(
+    431, f"the request's line and headers take more than {MAX_HEAD_BYTES} bytes (a chunked body's framing counts alike)"
+)
 HEAD_END = b"\r\n\r\n"
 #: How often a connection whose awaited bytes the server holds back checks whether they flow again.
 HELD_POLL_S = 0.5

@@ -4,15 +4,18 @@ and 2 s header and body timeouts: an answer sent before the body was read, a pip
 queued behind two slow answers, and a large body pipelined behind a streamed answer. Each case is one
 a review of the move to httptools found broken; then a refusal behind an answer under way, a body
 the server has not asked for yet (``Expect: 100-continue``), and an answer its client does not read
-(2 s send timeout)."""
+(2 s send timeout); last, the bodies of the guards' own refusals."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
 import socket
 import threading
 import time
 from collections.abc import AsyncIterator, Iterator
+from typing import Any
 
 import pytest
 import uvicorn
@@ -21,7 +24,8 @@ from starlette.requests import Request
 from starlette.responses import PlainTextResponse, Response, StreamingResponse
 from starlette.routing import Route
 
-from service.infra.server import protocol_for
+from service.errors import PROBLEM_BASE, TITLES
+from service.infra.server import MAX_HEAD_BYTES, protocol_for
 from service.infra.settings import Settings
 from tests.service.conftest import free_port
 from tests.service.test_hostile_load import _until_closed
@@ -190,3 +194,56 @@ def test_an_answer_read_slowly_is_not_cut(port: int) -> None:
             tail = (tail + chunk)[-1000:]
             time.sleep(max(0.0, received / 5e6 - (time.monotonic() - start)))
     assert received > BIG and tail == b"x" * 1000 and time.monotonic() - start > 4.0, received
+
+
+def _problem(answer: bytes) -> tuple[int, dict[str, str], dict[str, Any]]:
+    """The status, headers and JSON body of a whole HTTP/1.1 answer."""
+    head, _, body = answer.partition(b"\r\n\r\n")
+    status_line, *lines = head.decode("latin-1").split("\r\n")
+    headers = {name.lower(): value.strip() for name, _, value in (line.partition(":") for line in lines)}
+    assert int(headers["content-length"]) == len(body), answer
+    return int(status_line.split()[1]), headers, json.loads(body)
+
+
+def _refused_as_problems(answers: dict[int, bytes]) -> None:
+    for status, answer in answers.items():
+        got, headers, body = _problem(answer)
+        assert got == status and headers["content-type"] == "application/problem+json", answer
+        assert headers["connection"] == "close" and headers["x-content-type-options"] == "nosniff", answer
+        assert body["status"] == status and body["type"].startswith(PROBLEM_BASE) and body["detail"], body
+        assert body["title"] == TITLES[status], body
+
+
+def test_the_guards_refusals_are_problems(port: int) -> None:
+    """The 408, 431 and 503 the guards send before any app sees the request carry a problem+json
+    body, as every other error of the API does (they had none)."""
+    answers = {}
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\n")  # and no more: the header timeout
+        answers[408], closed = _until_closed(sock, 10.0)
+        assert closed is not None
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        with contextlib.suppress(OSError):  # refused mid-send
+            sock.sendall(b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\nX-Long: " + b"a" * (MAX_HEAD_BYTES + 1) + b"\r\n\r\n")
+        answers[431], closed = _until_closed(sock, 10.0)
+        assert closed is not None
+    chosen = free_port()
+    config = uvicorn.Config(APP, host="127.0.0.1", port=chosen, http=protocol_for(Settings(max_connections=1)), loop="asyncio")
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 30
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.05)
+        with socket.create_connection(("127.0.0.1", chosen)) as held:
+            held.sendall(b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\n\r\n")
+            assert held.recv(65536).startswith(b"HTTP/1.1 200")  # open, and counted
+            with socket.create_connection(("127.0.0.1", chosen)) as sock:
+                answers[503], closed = _until_closed(sock, 10.0)
+                assert closed is not None
+    finally:
+        server.should_exit = True
+        thread.join(10)
+    assert _problem(answers[503])[1]["retry-after"] == "1"
+    _refused_as_problems(answers)
