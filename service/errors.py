@@ -136,6 +136,16 @@ class ApiValidationError(ApiError):
         return cls(f"{dotted_path(loc)}: {detail or msg}", [{"loc": loc, "msg": msg}])
 
 
+def _json_invalid(e: Any) -> dict[str, Any] | None:
+    """A body that is not JSON, as an error of the body: FastAPI places it at ``("body", offset)``,
+    which read as an array index (``body[22]``), with the parser's reason left out."""
+    loc = e.get("loc", ())
+    if e.get("type") != "json_invalid" or len(loc) != 2 or loc[0] != "body" or not isinstance(loc[1], int):
+        return None
+    reason = (e.get("ctx") or {}).get("error") or "not valid JSON"
+    return {"loc": ["body"], "msg": f"not valid JSON: {reason} at char {loc[1]} (counted from 0)"}
+
+
 def _error_item(e: dict[str, Any]) -> dict[str, Any]:
     loc = [p for p in e.get("loc", [])]
     return {"field": dotted_path(loc), "loc": loc, "message": e.get("msg", "")}
@@ -191,7 +201,7 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
-        items = [{"loc": list(e.get("loc", [])), "msg": e.get("msg", "")} for e in exc.errors()]
+        items = [_json_invalid(e) or {"loc": list(e.get("loc", [])), "msg": e.get("msg", "")} for e in exc.errors()]
         errors = [_error_item(e) for e in items]
         detail = "; ".join(f"{e['field']}: {e['message']}" for e in errors) or "invalid request"
         return problem(422, detail, instance=request.url.path, errors=errors)
@@ -204,6 +214,8 @@ def install(app: FastAPI) -> None:
             if isinstance(cause, ValueError) and not isinstance(cause, UnicodeError) and "digits" in str(cause):
                 # Python's guard against quadratic int parsing, not the client's JSON
                 reason = f"a number in the body has more than {sys.get_int_max_str_digits()} digits"
+            elif isinstance(cause, RecursionError):  # valid JSON, but deeper than Python's parser goes
+                reason = "the body's JSON is nested too deeply (arrays or objects inside one another)"
             errors = [field_error(["body"], reason)]
             return problem(422, f"body: {reason}", instance=request.url.path, errors=errors)
         if exc.status_code == 413:

@@ -38,6 +38,7 @@ A front proxy (nginx's ``client_header_timeout``, ``client_body_timeout``, ``lim
 
 from __future__ import annotations
 
+import array
 import asyncio
 import logging
 import resource
@@ -46,6 +47,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+import httptools
 import uvicorn
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
@@ -85,10 +87,13 @@ REFUSED = canned_answer(
     "the API has as many connections open as it takes (SPACEARM_MAX_CONNECTIONS): try again in a second",
     (("retry-after", "1"),),
 )
-TIMED_OUT = canned_answer(
+HEAD_TIMED_OUT = canned_answer(
+    408, "the request's line and headers did not arrive within the header timeout (SPACEARM_HEADER_TIMEOUT_S)"
+)
+BODY_TIMED_OUT = canned_answer(
     408,
-    "the request did not arrive in time: its line and headers within SPACEARM_HEADER_TIMEOUT_S, its body within "
-    "SPACEARM_BODY_TIMEOUT_S plus a second per SPACEARM_BODY_MIN_RATE bytes",
+    "the request's body did not arrive within the body timeout (SPACEARM_BODY_TIMEOUT_S, plus a second per "
+    "SPACEARM_BODY_MIN_RATE bytes received)",
 )
 HEAD_TOO_LARGE = canned_answer(
     431, f"the request's line and headers take more than {MAX_HEAD_BYTES} bytes (a chunked body's framing counts alike)"
@@ -134,6 +139,20 @@ def guards_of(settings: Settings) -> Guards:
     return Guards(cap, settings.header_timeout_s, settings.body_timeout_s, float(settings.body_min_rate), settings.send_timeout_s)
 
 
+class _Parser(httptools.HttpRequestParser):
+    """httptools' request parser, keeping the reason of the error that ends the connection (uvicorn
+    catches it and says only "Invalid HTTP request received.")."""
+
+    reason = ""
+
+    def feed_data(self, data: bytes | bytearray | memoryview | array.array[int]) -> None:
+        try:
+            super().feed_data(data)
+        except httptools.HttpParserError as exc:
+            self.reason = str(exc)
+            raise
+
+
 class _Throttled:
     """Logs a warning at most once per ``every_s`` (with the count of the events in between)."""
 
@@ -164,6 +183,8 @@ class GuardedProtocol(HttpToolsProtocol):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        self.parser = _Parser(self)  # as uvicorn's, with its leniency
+        self.parser.set_dangerous_leniencies(lenient_data_after_close=True)
         # what the connection waits for from the client: "headers" (a head under way), "body" (the
         # body of the request last headed), "idle" (nothing, after a request answered before its
         # body was read: uvicorn's keep-alive timer stopped at that body), or None (nothing: an
@@ -185,6 +206,17 @@ class GuardedProtocol(HttpToolsProtocol):
         self._send_left = 0  # bytes the transport held when the send timer was armed
         self._head_bytes = 0  # of the head being received, before this read
         self._head_tail = b""  # its last bytes (its end may straddle two reads)
+
+    def send_400_response(self, msg: str) -> None:
+        """A request the parser refused (a malformed line or header, a control character in a
+        header value, a body framed both by ``Content-Length`` and chunks): a problem+json 400 with
+        the parser's reason, where uvicorn sends ``msg`` ("Invalid HTTP request received.") as
+        plain text. Then the connection closes."""
+        reason = self.parser.reason if isinstance(self.parser, _Parser) else ""
+        detail = f"not a valid HTTP/1.1 request: {reason}" if reason else "not a valid HTTP/1.1 request"
+        headers = tuple((name.decode("latin-1"), value.decode("latin-1")) for name, value in self.server_state.default_headers)
+        self.transport.write(canned_answer(400, detail, headers))
+        self.transport.close()
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         if len(self.server_state.connections) >= self.guards.max_connections:
@@ -392,8 +424,10 @@ class GuardedProtocol(HttpToolsProtocol):
             self.transport.close()  # kept alive long enough: nothing to answer
             return
         # a 408 answers the request awaited, unless it has had an answer (sent before its body)
-        if self._phase == "headers" or not self.cycle.response_started:
-            self.transport.write(TIMED_OUT)
+        if self._phase == "headers":
+            self.transport.write(HEAD_TIMED_OUT)
+        elif not self.cycle.response_started:
+            self.transport.write(BODY_TIMED_OUT)
         self._phase = None
         self.transport.close()
 

@@ -205,9 +205,10 @@ def _problem(answer: bytes) -> tuple[int, dict[str, str], dict[str, Any]]:
     return int(status_line.split()[1]), headers, json.loads(body)
 
 
-def _refused_as_problems(answers: dict[int, bytes]) -> None:
-    for status, answer in answers.items():
+def _refused_as_problems(answers: dict[tuple[int, str], bytes]) -> None:
+    for (status, says), answer in answers.items():
         got, headers, body = _problem(answer)
+        assert says in body["detail"], body
         assert got == status and headers["content-type"] == "application/problem+json", answer
         assert headers["connection"] == "close" and headers["x-content-type-options"] == "nosniff", answer
         assert body["status"] == status and body["type"].startswith(PROBLEM_BASE) and body["detail"], body
@@ -217,16 +218,18 @@ def _refused_as_problems(answers: dict[int, bytes]) -> None:
 def test_the_guards_refusals_are_problems(port: int) -> None:
     """The 408, 431 and 503 the guards send before any app sees the request carry a problem+json
     body, as every other error of the API does (they had none)."""
-    answers = {}
-    with socket.create_connection(("127.0.0.1", port)) as sock:
-        sock.sendall(b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\n")  # and no more: the header timeout
-        answers[408], closed = _until_closed(sock, 10.0)
-        assert closed is not None
-    with socket.create_connection(("127.0.0.1", port)) as sock:
-        with contextlib.suppress(OSError):  # refused mid-send
-            sock.sendall(b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\nX-Long: " + b"a" * (MAX_HEAD_BYTES + 1) + b"\r\n\r\n")
-        answers[431], closed = _until_closed(sock, 10.0)
-        assert closed is not None
+    answers: dict[tuple[int, str], bytes] = {}
+    sent = {
+        (408, "header timeout"): b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\n",  # and no more
+        (408, "body timeout"): b"POST /echo HTTP/1.1\r\nHost: x\r\nContent-Length: 10\r\n\r\n12345",  # half the body
+        (431, f"more than {MAX_HEAD_BYTES} bytes"): b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\nX-Long: " + b"a" * MAX_HEAD_BYTES,
+    }
+    for key, request_bytes in sent.items():
+        with socket.create_connection(("127.0.0.1", port)) as sock:
+            with contextlib.suppress(OSError):  # refused mid-send
+                sock.sendall(request_bytes)
+            answers[key], closed = _until_closed(sock, 10.0)
+            assert closed is not None, key
     chosen = free_port()
     config = uvicorn.Config(APP, host="127.0.0.1", port=chosen, http=protocol_for(Settings(max_connections=1)), loop="asyncio")
     server = uvicorn.Server(config)
@@ -240,10 +243,30 @@ def test_the_guards_refusals_are_problems(port: int) -> None:
             held.sendall(b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\n\r\n")
             assert held.recv(65536).startswith(b"HTTP/1.1 200")  # open, and counted
             with socket.create_connection(("127.0.0.1", chosen)) as sock:
-                answers[503], closed = _until_closed(sock, 10.0)
+                answers[(503, "SPACEARM_MAX_CONNECTIONS")], closed = _until_closed(sock, 10.0)
                 assert closed is not None
     finally:
         server.should_exit = True
         thread.join(10)
-    assert _problem(answers[503])[1]["retry-after"] == "1"
+    assert _problem(answers[(503, "SPACEARM_MAX_CONNECTIONS")])[1]["retry-after"] == "1"
     _refused_as_problems(answers)
+
+
+@pytest.mark.parametrize(
+    ("request_bytes", "reason"),
+    [
+        (b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\nIdempotency-Key: bad \x01\r\n\r\n", "Invalid header value char"),
+        (b"POST /echo HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n", "Content-Length"),
+        (b"GARBAGE\r\n\r\n", "Invalid method"),
+    ],
+)
+def test_a_request_the_parser_refuses_is_a_problem_with_its_reason(port: int, request_bytes: bytes, reason: str) -> None:
+    """uvicorn answered these "Invalid HTTP request received." as text/plain."""
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(request_bytes)
+        answer, closed = _until_closed(sock, 10.0)
+    assert closed is not None
+    status, headers, body = _problem(answer)
+    assert status == 400 and headers["content-type"] == "application/problem+json", answer
+    assert body["detail"].startswith("not a valid HTTP/1.1 request: ") and reason in body["detail"], body
+    assert body["status"] == 400 and body["title"] == "Bad Request" and "date" in headers, body

@@ -279,7 +279,15 @@ def test_diverging_plan_is_a_result_not_an_error(client: httpx.Client) -> None:
 
 
 def test_malformed_bodies_are_problems_naming_the_body(client: httpx.Client) -> None:
-    assert _fields(_raw(client, "/v1/plans", "{not json")) == ["body[1]"]
+    """JSON that does not parse is an error of the body with the parser's reason and where it
+    stopped (it was ``body[22]: JSON decode error``, which reads as an array index); JSON nested
+    deeper than the parser goes says so (it said "not valid JSON (UTF-8)")."""
+    r = _raw(client, "/v1/plans", '{"robot_id": "table1",')
+    assert _fields(r) == ["body"]
+    expected = "body: not valid JSON: Expecting property name enclosed in double quotes at char 22 (counted from 0)"
+    assert r.json()["detail"] == expected
+    r = _raw(client, "/v1/plans", "[" * 100_000 + "]" * 100_000)
+    assert _fields(r) == ["body"] and "nested too deeply" in r.json()["detail"], r.text
     r = client.post("/v1/plans", content=b"\x80\x81garbage", headers={"content-type": "application/json"})
     assert _fields(r)[0].startswith("body")
     assert _fields(client.get("/v1/plans", params={"offset": 10**20})) == ["query.offset"]
