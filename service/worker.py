@@ -56,6 +56,9 @@ def run_worker(
     log.info("engine kernels ready in %.1f s", seconds)
     if freeze_heap:
         resume_collector()
+    if stop.is_set():  # a signal during the warm-up: it said it was stopping, so no polling line
+        log.info("worker stopped before it polled")
+        return 0
     db = Database(settings.database_url, settings.sqlite_busy_timeout_ms)
     me = worker_id()
     dask_client = None

@@ -145,3 +145,25 @@ def test_importing_the_service_and_migrating_load_no_kernel(tmp_path: Path) -> N
     done = subprocess.run([sys.executable, "-c", NO_KERNEL_SCRIPT], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert json.loads(done.stdout.strip().splitlines()[-1]) == []
+
+
+def test_a_worker_stopped_during_its_warm_up_polls_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A stop (SIGTERM from ``spacearm run`` refusing to start) during the worker's warm-up: it
+    said it was stopping, then logged that it was polling (a new-user trial found the two lines
+    confusing); it now stops before the polling line."""
+    import service.worker
+
+    stop = threading.Event()
+
+    def warm() -> float:
+        stop.set()  # the signal handler's doing, as the kernels load
+        return 0.0
+
+    monkeypatch.setattr(service.worker, "warm_up", warm)
+    url = f"sqlite:///{tmp_path / 'worker.db'}"
+    upgrade(url, "head")
+    with caplog.at_level("INFO", logger="spacearm.worker"):
+        assert service.worker.run_worker(Settings(database_url=url), shutdown=stop) == 0
+    assert "worker stopped before it polled" in caplog.text and "polling" not in caplog.text
