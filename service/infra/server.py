@@ -24,6 +24,9 @@ out of file descriptors is logged once instead of once a second with a traceback
   (``ulimit -n``) is lower: the limit less a reserve for the database connections, the
   process's own files and the connections a burst brings in before they are refused (asyncio
   accepts up to :data:`BACKLOG` at a time), so the accept loop does not run out of descriptors.
+- **Refusals.** The guards' 408, 431 and 503, and the 400 of a request the parser refuses (with
+  the parser's reason; uvicorn sent it as plain text), are problem+json like the app's errors
+  (:class:`Canned`), and none of them replaces an answer owed before it.
 - **Out of descriptors.** When accepting fails for want of descriptors anyway, asyncio reports it
   to the event loop's exception handler with a traceback for every connection waiting, and pauses
   accepting for a second; here it is one warning a minute (with the count of the others).
@@ -44,6 +47,7 @@ import logging
 import resource
 import socket
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -66,36 +70,43 @@ BACKLOG = 128
 MAX_HEAD_BYTES = 16 * 1024
 
 
-def canned_answer(status: int, detail: str, headers: tuple[tuple[str, str], ...] = ()) -> bytes:
-    """A whole HTTP/1.1 answer that closes the connection, with a problem+json body as every other
-    error of the API has (:func:`service.errors.problem_body`), made once: the guards answer
-    before any request reaches the app."""
-    body = dumps(problem_body(status, detail))
-    lines = [
-        f"HTTP/1.1 {status} {TITLES[status]}",
-        *(f"{name}: {value}" for name, value in headers),
-        f"content-type: {PROBLEM_JSON}",
-        "x-content-type-options: nosniff",
-        "connection: close",
-        f"content-length: {len(body)}",
-    ]
-    return "\r\n".join(lines).encode("latin-1") + b"\r\n\r\n" + body
+@dataclass(frozen=True)
+class Canned:
+    """An answer the guards send before any request reaches the app: ``status`` with a problem+json
+    body as every other error of the API has (:func:`service.errors.problem_body`), then the
+    connection closes."""
+
+    status: int
+    detail: str
+    headers: tuple[tuple[bytes, bytes], ...] = ()
+
+    def encode(self, default_headers: Iterable[tuple[bytes, bytes]] = ()) -> bytes:
+        """The whole HTTP/1.1 answer, with uvicorn's ``default_headers`` (``date``, ``server``)."""
+        body = dumps(problem_body(self.status, self.detail))
+        head = [f"HTTP/1.1 {self.status} {TITLES[self.status]}\r\n".encode("latin-1")]
+        for name, value in (*default_headers, *self.headers):
+            head += [name, b": ", value, b"\r\n"]
+        head.append(
+            f"content-type: {PROBLEM_JSON}\r\nx-content-type-options: nosniff\r\nconnection: close\r\n"
+            f"content-length: {len(body)}\r\n\r\n".encode("latin-1")
+        )
+        return b"".join(head) + body
 
 
-REFUSED = canned_answer(
+REFUSED = Canned(
     503,
     "the API has as many connections open as it takes (SPACEARM_MAX_CONNECTIONS): try again in a second",
-    (("retry-after", "1"),),
+    ((b"retry-after", b"1"),),
 )
-HEAD_TIMED_OUT = canned_answer(
+HEAD_TIMED_OUT = Canned(
     408, "the request's line and headers did not arrive within the header timeout (SPACEARM_HEADER_TIMEOUT_S)"
 )
-BODY_TIMED_OUT = canned_answer(
+BODY_TIMED_OUT = Canned(
     408,
     "the request's body did not arrive within the body timeout (SPACEARM_BODY_TIMEOUT_S, plus a second per "
     "SPACEARM_BODY_MIN_RATE bytes received)",
 )
-HEAD_TOO_LARGE = canned_answer(
+HEAD_TOO_LARGE = Canned(
     431, f"the request's line and headers take more than {MAX_HEAD_BYTES} bytes (a chunked body's framing counts alike)"
 )
 HEAD_END = b"\r\n\r\n"
@@ -149,7 +160,11 @@ class _Parser(httptools.HttpRequestParser):
         try:
             super().feed_data(data)
         except httptools.HttpParserError as exc:
-            self.reason = str(exc)
+            cause = exc.__context__ if isinstance(exc, httptools.HttpParserCallbackError) else exc
+            if isinstance(cause, httptools.HttpParserError):  # the parser's, or the URL parser's in a callback
+                self.reason = str(cause)
+            else:  # a callback failed (the server's fault, not the request's): say so in the log
+                log.error("parsing a request failed in a callback", exc_info=cause)
             raise
 
 
@@ -211,17 +226,27 @@ class GuardedProtocol(HttpToolsProtocol):
         """A request the parser refused (a malformed line or header, a control character in a
         header value, a body framed both by ``Content-Length`` and chunks): a problem+json 400 with
         the parser's reason, where uvicorn sends ``msg`` ("Invalid HTTP request received.") as
-        plain text. Then the connection closes."""
+        plain text, then the connection closes; as a 408 or 431 does, it waits for an answer owed
+        before it (:meth:`_refuse`), and a request whose answer has started gets no second one."""
         reason = self.parser.reason if isinstance(self.parser, _Parser) else ""
-        detail = f"not a valid HTTP/1.1 request: {reason}" if reason else "not a valid HTTP/1.1 request"
-        headers = tuple((name.decode("latin-1"), value.decode("latin-1")) for name, value in self.server_state.default_headers)
-        self.transport.write(canned_answer(400, detail, headers))
-        self.transport.close()
+        detail = f"not a valid HTTP request: {reason}" if reason else "not a valid HTTP request"
+        if self._phase == "body" and not self.pipeline and self.cycle is not None and self.cycle.response_started:
+            self._phase = None  # its body broke its framing after its answer started: that answer, then close
+            if self.cycle.response_complete:
+                self.transport.close()
+            else:
+                self._close_after = True
+                self.transport.pause_reading()
+            return
+        self._refuse(Canned(400, detail))
+
+    def _send(self, answer: Canned) -> None:
+        self.transport.write(answer.encode(self.server_state.default_headers))
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         if len(self.server_state.connections) >= self.guards.max_connections:
             self.transport = transport  # for connection_lost
-            transport.write(REFUSED)
+            transport.write(REFUSED.encode(self.server_state.default_headers))
             transport.close()
             REFUSALS.warn("refused connections: %d are open (SPACEARM_MAX_CONNECTIONS)", self.guards.max_connections)
             return
@@ -287,7 +312,7 @@ class GuardedProtocol(HttpToolsProtocol):
         if self._framing > MAX_HEAD_BYTES:
             self._refuse(HEAD_TOO_LARGE)
 
-    def _refuse(self, answer: bytes) -> None:
+    def _refuse(self, answer: Canned) -> None:
         """Refuse the request being received: ``answer`` and close, or, while an earlier request's
         answer is under way (it is owed first), read no more and close once it is out."""
         earlier = self._earlier_answer()  # of the phase the refusal ends
@@ -296,7 +321,7 @@ class GuardedProtocol(HttpToolsProtocol):
             self._close_after = True
             self.transport.pause_reading()
         else:
-            self.transport.write(answer)
+            self._send(answer)
             self.transport.close()
 
     def _head_too_large(self, data: bytes) -> bool:
@@ -425,9 +450,9 @@ class GuardedProtocol(HttpToolsProtocol):
             return
         # a 408 answers the request awaited, unless it has had an answer (sent before its body)
         if self._phase == "headers":
-            self.transport.write(HEAD_TIMED_OUT)
+            self._send(HEAD_TIMED_OUT)
         elif not self.cycle.response_started:
-            self.transport.write(BODY_TIMED_OUT)
+            self._send(BODY_TIMED_OUT)
         self._phase = None
         self.transport.close()
 

@@ -26,7 +26,8 @@ router = APIRouter(prefix="/v1/tuning-jobs", tags=["tuning"], route_class=Sessio
     description="Returns 202 with `Location` of the job. Send `Idempotency-Key` to make retries safe: "
     "the same key with the same body returns the same job; the same key with another body is a 422. "
     "A job is bounded by its work: at most 200,000 plan evaluations "
-    "(population * (generations + 1) * tasks, once more for each of `compare_with_dls` and `compare_with_bounded`) and at most "
+    "(population * (generations + 1) * tasks, once more for each of `compare_with_dls`, `compare_with_bounded` and "
+    "`uncertainty` (the nominal GA); the refinement's plans not counted) and at most "
     f"{MAX_JOB_JOINT_STEPS:.2g} joint-steps (the same times the plan-steps of the tasks times the robot's joints; "
     "about a microsecond each); 429 with `Retry-After` when `SPACEARM_MAX_QUEUED_JOBS` jobs are already queued.",
     responses=responses(404, 406, 415, 422),

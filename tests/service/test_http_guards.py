@@ -211,6 +211,7 @@ def _refused_as_problems(answers: dict[tuple[int, str], bytes]) -> None:
         assert says in body["detail"], body
         assert got == status and headers["content-type"] == "application/problem+json", answer
         assert headers["connection"] == "close" and headers["x-content-type-options"] == "nosniff", answer
+        assert "date" in headers and "server" in headers, answer  # a 4xx has a Date (RFC 9110), as the app's have
         assert body["status"] == status and body["type"].startswith(PROBLEM_BASE) and body["detail"], body
         assert body["title"] == TITLES[status], body
 
@@ -258,6 +259,7 @@ def test_the_guards_refusals_are_problems(port: int) -> None:
         (b"GET /slow?s=0 HTTP/1.1\r\nHost: x\r\nIdempotency-Key: bad \x01\r\n\r\n", "Invalid header value char"),
         (b"POST /echo HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n", "Content-Length"),
         (b"GARBAGE\r\n\r\n", "Invalid method"),
+        (b"GET http://a:99999999/ HTTP/1.1\r\nHost: x\r\n\r\n", "invalid url"),  # raised in uvicorn's callback
     ],
 )
 def test_a_request_the_parser_refuses_is_a_problem_with_its_reason(port: int, request_bytes: bytes, reason: str) -> None:
@@ -268,5 +270,24 @@ def test_a_request_the_parser_refuses_is_a_problem_with_its_reason(port: int, re
     assert closed is not None
     status, headers, body = _problem(answer)
     assert status == 400 and headers["content-type"] == "application/problem+json", answer
-    assert body["detail"].startswith("not a valid HTTP/1.1 request: ") and reason in body["detail"], body
+    assert body["detail"].startswith("not a valid HTTP request: ") and reason in body["detail"], body
     assert body["status"] == 400 and body["title"] == "Bad Request" and "date" in headers, body
+
+
+def test_a_request_the_parser_refuses_behind_an_answer_under_way_waits_for_it(port: int) -> None:
+    """A malformed request pipelined behind one whose answer is under way: that answer whole, then
+    the connection closes (the 400 had replaced it, or landed inside a streamed answer); a body
+    that breaks its framing after its request's answer has started gets no second answer."""
+    for first in (b"GET /slow?s=0.3 HTTP/1.1\r\nHost: x\r\n\r\n", b"GET /stream HTTP/1.1\r\nHost: x\r\n\r\n"):
+        with socket.create_connection(("127.0.0.1", port)) as sock:
+            sock.sendall(first + b"GARBAGE\r\n\r\n")
+            answer, closed = _until_closed(sock, 10.0)
+        assert closed is not None and answer.startswith(b"HTTP/1.1 200"), answer
+        assert b"400" not in answer and (b"slept 0.3" in answer or answer.endswith(b"tick11\n\r\n0\r\n\r\n")), answer
+    chunked = b"POST /nope HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n"
+    with socket.create_connection(("127.0.0.1", port)) as sock:
+        sock.sendall(chunked)
+        time.sleep(0.3)  # the 404 is sent without reading the body
+        sock.sendall(b"zz\r\nbad\r\n")  # not a chunk-size line
+        answer, closed = _until_closed(sock, 10.0)
+    assert closed is not None and answer.startswith(b"HTTP/1.1 404") and answer.count(b"HTTP/1.1") == 1, answer
