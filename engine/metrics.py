@@ -46,9 +46,13 @@ ATTITUDE_TERMS: tuple[str, ...] = ("eq18", "angle")
 #: The units of the GJM's singular values (it maps joint rates, rad/s, to [v (m/s); w (rad/s)]:
 #: m/rad on the linear rows, 1 on the angular rows).
 SINGULAR_VALUE_UNITS = "in the units of the GJM's singular values"
-#: The unit of the GJM's determinant (and of the product of its singular values): three linear
-#: rows in m (m/s per rad/s) and three angular rows without unit.
-DET_UNITS = "m^3 (three rows in m per rad, three without unit)"
+#: The unit of the GJM's determinant (and of the product of its singular values): of a revolute
+#: column, the linear rows in m (m/s per rad/s) and the angular rows without unit; of a prismatic
+#: column, the linear rows without unit and the angular rows in rad/m.
+DET_UNITS = (
+    "m^3 for revolute joints (three rows in m per rad, three without unit; each prismatic joint's column changes "
+    "it by 1/m, its linear rows being without unit)"
+)
 NULL_NOT_FINITE = "null if not finite"
 
 #: How a value is shown by the API: as it is (SI), in degrees, or as a 1-based joint number.

@@ -321,7 +321,7 @@ IMAGE_RESPONSES: dict[int | str, dict[str, Any]] = {
             },
         },
     },
-    304: {"description": "not modified: `If-None-Match` names the current `ETag`"},
+    304: {"description": "not modified: `If-None-Match` names the current `ETag` (weakly compared, in a list or as `*`)"},
 }
 
 
@@ -335,6 +335,18 @@ class UnknownFigureError(ApiError):
         )
 
 
+def _none_match(header: str | None, etag: str) -> bool:
+    """Whether an ``If-None-Match`` header matches ``etag`` (RFC 9110, 13.1.2): ``*``, or a
+    comma-separated list of entity tags compared weakly (``W/"x"`` matches ``"x"``: a proxy that
+    compresses the answer may weaken the tag it passes on)."""
+    if header is None:
+        return False
+    if header.strip() == "*":
+        return True
+    opaque = etag.removeprefix("W/")
+    return any(tag.strip().removeprefix("W/") == opaque for tag in header.split(","))
+
+
 def image_response(request: Request, content: bytes, fmt: str, hit: bool, immutable: bool) -> Response:
     etag = '"' + hashlib.sha1(content).hexdigest() + '"'
     headers = {
@@ -342,6 +354,6 @@ def image_response(request: Request, content: bytes, fmt: str, hit: bool, immuta
         "X-Figure-Cache": "hit" if hit else "miss",
         "Cache-Control": "public, max-age=86400" if immutable else "no-cache",
     }
-    if request.headers.get("if-none-match") == etag:
+    if _none_match(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=headers)
     return Response(content, media_type=figures.FORMATS[fmt], headers=headers)

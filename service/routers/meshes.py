@@ -9,7 +9,7 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Query, Request, Response, status
 
 from service.deps import DbDep, Limit, Offset, SessionDep, SessionRoute, SettingsDep, run_admitted
-from service.errors import ApiValidationError, responses
+from service.errors import ApiValidationError, Problem, responses
 from service.schemas.common import ID_PATTERN
 from service.schemas.meshes import MeshFormat, MeshList, MeshOut
 from service.usecases import meshes, rows
@@ -35,12 +35,16 @@ UPLOAD_BODY = {
     response_model=MeshOut,
     status_code=status.HTTP_201_CREATED,
     summary="Store a mesh (STL or OBJ) for the obstacles of task scenes",
-    description="The body is the file (at most 512 KiB); its format is `format`, else its `Content-Type` (`model/stl`, "
-    "`model/obj`). The mesh must be one closed surface (watertight) with finite coordinates within +-1 km (taken as "
-    "metres), and its convex hull, which is the obstacle a scene checks, at most 512 vertices; otherwise a 422 says "
-    "why. The same file is stored once: posting it again answers 200 with the stored mesh. 201 with the mesh and its "
-    "`Location`.",
-    responses={**responses(422), 200: {"description": "the same file was stored already: the stored mesh", "model": MeshOut}},
+    description="The body is the file (at most 512 KiB, else a 413); its format is `format`, else its "
+    "`Content-Type` (`model/stl`, `model/obj`). The mesh must be one closed surface (watertight) with finite "
+    "coordinates within +-1 km (taken as metres), and its convex hull, which is the obstacle a scene checks, at most "
+    "512 vertices; otherwise a 422 says why. The same file is stored once: posting it again answers 200 with the "
+    "stored mesh. 201 with the mesh and its `Location`.",
+    responses={
+        **responses(422),
+        413: {"description": "the file is over 512 KiB (or the body over 1 MiB)", "model": Problem},
+        200: {"description": "the same file was stored already: the stored mesh", "model": MeshOut},
+    },
     openapi_extra=UPLOAD_BODY,
 )
 async def create_mesh(

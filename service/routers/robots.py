@@ -143,8 +143,9 @@ def delete_robot(robot_id: RobotId, db: DbDep) -> Response:
     summary="Generalized Jacobian (GJM) and end-effector pose at a state",
     description="The GJM of the free-floating robot (the base's reaction included, zero momentum) at the joint angles "
     "and base pose given, with its singular values, determinant, manipulability and condition number, and the "
-    "end-effector pose. Nothing is stored. A GJM that is not finite at that state (masses too small for double "
-    "precision) is a 422 that says so.",
+    "end-effector pose. Nothing is stored. The state may lie outside the joints' limits (the GJM is defined there too; "
+    "a plan's start may not). A GJM that is not finite at that state (masses too small for double precision) is a 422 "
+    "that says so.",
     responses=responses(404, 409, 415, 422),
     dependencies=[JsonBody],
 )

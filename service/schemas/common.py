@@ -59,9 +59,10 @@ Inertia = Annotated[
 ]
 RotationRow = Annotated[list[Annotated[float, Field(ge=-1.000001, le=1.000001)]], Field(min_length=3, max_length=3)]
 Rotation = Annotated[list[RotationRow], Field(min_length=3, max_length=3, description="a rotation matrix (orthonormal, det +1)")]
-JointValue = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
-#: Joint positions of one unit, index-aligned with the robot's joints (null: a joint of the other unit).
-JointValues = Annotated[list[JointValue | None], Field(min_length=1, max_length=MAX_JOINTS)]
+#: Joint positions of one unit, index-aligned with the robot's joints (null: a joint of the other
+#: unit): revolute joints' angles in degrees, prismatic joints' displacements in metres.
+JointValues = Annotated[list[AngleDeg | None], Field(min_length=1, max_length=MAX_JOINTS)]
+JointLengths = Annotated[list[Length | None], Field(min_length=1, max_length=MAX_JOINTS)]
 LimitValue = Annotated[float, Field(ge=-MAX_JOINT_LIMIT, le=MAX_JOINT_LIMIT)]
 
 #: A stored plan's, job's or landscape's id: 32 lowercase hex digits.

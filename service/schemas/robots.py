@@ -26,6 +26,7 @@ from service.schemas.common import (
     EngineName,
     Inertia,
     Input,
+    JointLengths,
     JointType,
     JointUnit,
     JointValues,
@@ -349,7 +350,7 @@ class JacobianRequest(Input):
     joint_angles_deg: Annotated[JointValues | None, EngineName("q")] = Field(
         default=None, description="revolute joint angles, deg (null at prismatic joints)", examples=[list(PAPER_Q0_DEG)]
     )
-    joint_displacements_m: JointValues | None = Field(
+    joint_displacements_m: JointLengths | None = Field(
         default=None, description="prismatic joint positions, m (null at revolute joints)"
     )
     base_position_m: Vec3 | None = Field(default=None, description="base CoM in world, m (default origin)")

@@ -18,6 +18,7 @@ from service.schemas.common import (
     PAPER_TASK_EXAMPLE,
     EngineName,
     Input,
+    JointLengths,
     JointValues,
     Output,
     Quaternion,
@@ -42,7 +43,7 @@ class TaskIn(Input):
     q0_deg: JointValues | None = Field(
         default=None, description="initial joint angles of the revolute joints, deg (null at prismatic joints)"
     )
-    q0_m: JointValues | None = Field(
+    q0_m: JointLengths | None = Field(
         default=None, description="initial positions of the prismatic joints, m (null at revolute joints)"
     )
     tracks: TrackedQuantity = Field(

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session
 from engine.bounds import MAX_LENGTH_M
 from engine.errors import ParameterError
 from engine.geometry import MAX_HULL_VERTICES
-from service.errors import ApiValidationError
+from service.errors import ApiError, ApiValidationError, field_error
 from service.infra.quota import check_quota
 from service.models import Mesh, utcnow
 from service.schemas.geometry import MESH_HULLS
@@ -28,7 +28,7 @@ from service.usecases import rows
 #: Media types of the formats (``Content-Type`` of an upload, besides ``?format=``).
 MEDIA_TYPES: dict[str, MeshFormat] = {"model/stl": "stl", "model/obj": "obj", "application/sla": "stl"}
 MIN_EXTENT_M = 1e-4
-#: Bytes of an uploaded mesh file, at most (the request limit is larger: this one is a 422 that says so).
+#: Bytes of an uploaded mesh file, at most (the request limit is larger: this one's 413 names it).
 MAX_MESH_BYTES = 512 * 1024
 
 
@@ -43,8 +43,9 @@ def read(content: bytes, fmt: MeshFormat) -> tuple[Any, np.ndarray]:
 
     if not content:
         raise _invalid("the file is empty")
-    if len(content) > MAX_MESH_BYTES:
-        raise _invalid(f"the file has {len(content)} bytes, more than the {MAX_MESH_BYTES} a mesh may have")
+    if len(content) > MAX_MESH_BYTES:  # a 413 as for any body over a limit (it was a 422 under 1 MiB)
+        reason = f"the file has {len(content)} bytes, more than the {MAX_MESH_BYTES} a mesh may have"
+        raise ApiError(413, f"body: {reason}", errors=[field_error(["body"], reason)])
     try:
         # unprocessed first: processing drops the vertices that are not finite, and then the mesh
         # read as not closed instead of as not finite

@@ -93,7 +93,13 @@ def test_plan_figure_is_cached(client: httpx.Client, plans: dict[str, str]) -> N
     second = client.get(url)
     assert second.headers["x-figure-cache"] == "hit"
     assert first.content == second.content
-    assert client.get(url, headers={"if-none-match": second.headers["etag"]}).status_code == 304
+    etag = second.headers["etag"]
+    # RFC 9110's weak comparison, lists and "*" (a weak tag or a list got the whole figure again)
+    for header in (etag, f"W/{etag}", f'"other", {etag}', "*"):
+        revalidated = client.get(url, headers={"if-none-match": header})
+        assert revalidated.status_code == 304 and revalidated.headers["etag"] == etag, header
+    for header in ('"other"', f'"{etag.strip(chr(34))}x"'):
+        assert client.get(url, headers={"if-none-match": header}).status_code == 200, header
 
 
 def test_unknown_figure_and_plan_are_404(client: httpx.Client, plans: dict[str, str]) -> None:

@@ -140,8 +140,9 @@ def test_meshes_are_stored_once_checked_and_used_as_obstacles(client: httpx.Clie
     assert r.status_code == 422 and "not closed" in r.json()["detail"]
     r = client.post("/v1/meshes", content=b"solid nothing", params={"format": "obj"})
     assert r.status_code == 422 and "no triangles" in r.json()["detail"]
-    r = client.post("/v1/meshes", content=b"x" * (600 * 1024), params={"format": "stl"})
-    assert r.status_code == 422 and "bytes, more than the" in r.json()["detail"]
+    r = client.post("/v1/meshes", content=b"x" * (600 * 1024), params={"format": "stl"})  # under the body limit
+    assert r.status_code == 413 and "bytes, more than the 524288" in r.json()["detail"]  # as a larger body is
+    assert r.json()["errors"][0]["field"] == "body"
     r = client.post("/v1/meshes", content=_stl(panel))
     assert r.status_code == 422 and r.json()["errors"][0]["field"] == "query.format"
     fine = trimesh.creation.icosphere(subdivisions=4)  # a hull of 2562 vertices

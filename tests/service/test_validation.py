@@ -355,3 +355,12 @@ def test_a_robust_statistic_without_uncertainty_is_refused(client: httpx.Client)
     for statistic in ("p95", "max"):
         r = client.post("/v1/tuning-jobs", json={**job_body(), "robust_statistic": statistic})
         assert _fields(r) == ["body.robust_statistic"] and "needs `uncertainty`" in r.json()["detail"]
+
+
+def test_prismatic_positions_are_lengths_within_a_kilometre(client: httpx.Client) -> None:
+    """``joint_displacements_m`` and ``q0_m`` had the angles' bound (36,000, in metres)."""
+    state: dict[str, Any] = {"joint_angles_deg": [0, 20, None], "joint_displacements_m": [None, None, 3e4]}
+    r = client.post("/v1/robots/arm3/jacobian", json=state)
+    assert r.status_code == 422 and _fields(r) == ["body.joint_displacements_m[2]"], r.text
+    r = client.post("/v1/robots/arm3/jacobian", json={**state, "joint_displacements_m": [None, None, 30]})
+    assert r.status_code == 200, r.text  # outside the boom's limits (0 to 0.5 m), and documented as allowed
