@@ -151,8 +151,9 @@ class PlanData:
             for loop in ("open", "closed")
             if f"robust_{loop}_position_band" in record
         }
-        #: the task's obstacles (engine shapes, world frame), set by whoever loads the plan
-        self.obstacles: tuple[Shape, ...] = ()
+        #: the task's obstacles (engine shapes, world frame; None for one that can no longer be
+        #: read, a mesh deleted since), set by whoever loads the plan
+        self.obstacles: tuple[Shape | None, ...] = ()
 
     @property
     def label(self) -> str:
@@ -739,14 +740,18 @@ def draw_scene(ax: Any, data: PlanData) -> None:
         )
     ax.plot(*desired.T, color="C0", linewidth=4.0, alpha=0.5, label="desired end-effector path", zorder=SCENE_ZORDER["desired"])
     ax.plot(*achieved.T, color="C1", linewidth=1.3, label="achieved end-effector path", zorder=SCENE_ZORDER["achieved"])
-    for i, shape in enumerate(data.obstacles):
+    drawn = [shape for shape in data.obstacles if shape is not None]
+    for i, shape in enumerate(drawn):
         for k, segment in enumerate(shape_outline(shape)):
             ax.plot(*segment.T, color="C4", linewidth=0.7, alpha=0.8, label="obstacles" if i == 0 and k == 0 else None, zorder=1)
+    missing = [f"obstacle{i}" for i, shape in enumerate(data.obstacles) if shape is None]
+    if missing:  # an empty line whose legend entry says what is not drawn
+        ax.plot([], [], [], color="none", label=f"not drawn (mesh deleted since): {', '.join(missing)}")
     closest = closest_pair(data)
     if closest is not None:
         points_ab, label = closest
         ax.plot(*points_ab.T, color="C3", linewidth=2.0, marker="x", label=label, zorder=SCENE_ZORDER["achieved"] + 1)
-    outlines = [seg for shape in data.obstacles for seg in shape_outline(shape)]
+    outlines = [seg for shape in drawn for seg in shape_outline(shape)]
     points = [p for p in (desired, achieved, *arms, *outlines) if p.size]
     cloud = np.concatenate(points) if points else np.zeros((1, 3))
     cloud = cloud[np.all(np.isfinite(cloud), axis=1)]
@@ -813,8 +818,9 @@ def closest_pair(data: PlanData) -> tuple[np.ndarray, str] | None:
     owners: dict[str, list[tuple[Shape, tuple[np.ndarray, np.ndarray] | None]]] = {}
     for name, body, shape in _body_shapes(model):
         owners.setdefault(name, []).append((shape, poses[body]))
-    for i, shape in enumerate(data.obstacles):
-        owners.setdefault(f"obstacle{i}", []).append((shape, None))
+    for i, obstacle in enumerate(data.obstacles):
+        if obstacle is not None:
+            owners.setdefault(f"obstacle{i}", []).append((obstacle, None))
     if pair[0] not in owners or pair[1] not in owners:
         return None
     best = min(

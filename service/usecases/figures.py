@@ -40,17 +40,28 @@ def robot_parameters(session: Session, p: Plan) -> dict[str, Any] | None:
         return None
 
 
-def obstacles(session: Session, request: dict[str, Any] | None) -> tuple[Shape, ...]:
+def obstacles(session: Session, request: dict[str, Any] | None) -> tuple[Shape | None, ...]:
     """The obstacles of a stored plan's request (world frame; a mesh by its stored hull), none
-    when the request has none or this version cannot read them (a mesh deleted since)."""
+    when the request has none; None in place of one this version cannot read (a mesh deleted
+    since), so that the others keep their names (``obstacle<i>``, as the plan's metrics name them;
+    a deleted mesh took every obstacle with it)."""
     scene = ((request or {}).get("task") or {}).get("scene")
     if not isinstance(scene, dict) or not scene.get("obstacles"):
         return ()
-    try:
-        with meshes.hulls(session):
+    with meshes.hulls(session):
+        try:
             return SceneIn.model_validate(scene).to_engine(0.0).obstacles
-    except (ValidationError, ParameterError):
-        return ()
+        except (ValidationError, ParameterError):
+            pass
+        return tuple(_obstacle(obstacle) for obstacle in scene["obstacles"])
+
+
+def _obstacle(obstacle: Any) -> Shape | None:
+    try:
+        (shape,) = SceneIn.model_validate({"obstacles": [obstacle]}).to_engine(0.0).obstacles
+    except (ValidationError, ParameterError, ValueError):
+        return None
+    return shape
 
 
 def plan_data(session: Session, row: Plan, with_robot: bool = True) -> figures.PlanData:

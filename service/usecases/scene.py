@@ -88,5 +88,5 @@ def scene(db: Database, plan_id: str) -> dict[str, Any]:
         "joints": int(data.q.shape[1]) if data.q.ndim == 2 else 0,
         "frames": {"index": index.tolist(), "t_s": data.t[index].tolist(), "points_m": points.tolist()},
         "carrier": carrier_of(robot.get("base") or {}),
-        "obstacles": [triangles(shape) for shape in shapes],
+        "obstacles": [triangles(shape) for shape in shapes if shape is not None],  # a deleted mesh's is left out
     }
