@@ -6,6 +6,10 @@
 - **Requests**: `POST /v1/plans` of the paper task (replay false) against one API process: p50
   with one client, plans per second with 4 clients (`bench_http.py`'s clients); and plans per
   second with 4 clients against two API processes behind the port (`spacearm run --api-processes 2`).
+  Beside them, as ratios, the same clients against the HTTP anchor (`http_anchor.py`: uvicorn's
+  server answering a canned body of a paper plan's size), measured in the same run: the machine's
+  sockets and scheduling moved the API's numbers by a quarter from one day to the next, and the
+  anchor says whether the machine or the API moved.
 - **Admission**: 100 concurrent paper plans, then 40 concurrent 20,000-step plans (two slots, a
   2 s timeout), `/healthz` polled all along.
 - **Kernels**: the compiled anchor and the engine's rows (`bench_anchor.py`).
@@ -209,10 +213,37 @@ def burst(url: str, body: dict[str, Any], count: int) -> tuple[list[int], float]
     return statuses, 1e3 * statistics.quantiles(latencies, n=100, method="inclusive")[98]
 
 
+def http_anchor(answer_bytes: int) -> tuple[float, float]:
+    """p50 with one client (ms) and answers per second with 4 of :mod:`http_anchor` (uvicorn's
+    httptools server answering a canned body of ``answer_bytes``), measured as the API is."""
+    port = free_port()
+    command = [sys.executable, str(Path(__file__).resolve().parent / "http_anchor.py"), "--port", str(port)]
+    proc = subprocess.Popen([*command, "--bytes", str(answer_bytes)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                httpx.post(url, content=b"{}", timeout=1)
+                break
+            except httpx.HTTPError:
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the HTTP anchor did not start") from None
+                time.sleep(0.1)
+        bench_http.run(url, 2, 4, False)
+        one, _ = bench_http.run(url, 1, 48, False)
+        four, wall = bench_http.run(url, 4, 24, False)
+        return statistics.median(one) * 1e3, len(four) / wall
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
 def requests_and_admission(directory: Path) -> list[Goal]:
     proc, url = bench_http.start_server(directory)
     try:
         bench_http.run(url, 2, 4, False)  # connections, caches
+        answer_bytes = len(httpx.post(url + "/v1/plans", json=PAPER, timeout=60).content)
         one, _ = bench_http.run(url, 1, 48, False)
         four, wall = bench_http.run(url, 4, 24, False)
         p50 = statistics.median(one) * 1e3
@@ -221,6 +252,12 @@ def requests_and_admission(directory: Path) -> list[Goal]:
     finally:
         proc.terminate()
         proc.wait(10)
+    anchor_p50, anchor_rate = http_anchor(answer_bytes)
+    print(
+        f"HTTP anchor (uvicorn + httptools answering a canned {answer_bytes}-byte body): p50 {anchor_p50:.2f} ms with one "
+        f"client, {anchor_rate:.0f} answers/s with 4; the API's p50 {p50 / anchor_p50:.1f}x the anchor's, its rate "
+        f"{rate / anchor_rate:.2f}x"
+    )
     proc, url = bench_http.start_server(directory / "two", processes=2)
     try:
         bench_http.run(url, 4, 4, False)  # connections (spread over the processes), caches
@@ -251,8 +288,12 @@ def requests_and_admission(directory: Path) -> list[Goal]:
     print(f"40 concurrent 20,000-step plans: {served} answered 201, {refused} 503; /healthz p99 {long_p99:.0f} ms")
     worst = max(p99, long_p99)
     return [
-        ("POST /v1/plans p50 with one client <= 2.5 ms", f"{p50:.1f} ms", p50 <= 2.5),
-        ("POST /v1/plans >= 400 plans/s with 4 clients, one API process", f"{rate:.0f} plans/s", rate >= 400.0),
+        ("POST /v1/plans p50 with one client <= 2.5 ms", f"{p50:.1f} ms ({p50 / anchor_p50:.1f}x the HTTP anchor)", p50 <= 2.5),
+        (
+            "POST /v1/plans >= 400 plans/s with 4 clients, one API process",
+            f"{rate:.0f} plans/s ({rate / anchor_rate:.2f}x the HTTP anchor)",
+            rate >= 400.0,
+        ),
         ("POST /v1/plans >= 400 plans/s with 4 clients, two API processes", f"{rate_two:.0f} plans/s", rate_two >= 400.0),
         ("100 concurrent paper plans all served", f"{statuses.count(201)} of 100", statuses.count(201) == 100),
         (
