@@ -8,8 +8,8 @@
   second with 4 clients against two API processes behind the port (`spacearm run --api-processes 2`).
   Beside them, as ratios, the same clients against the HTTP anchor (`http_anchor.py`: uvicorn's
   server answering a canned body of a paper plan's size), measured in the same run: the machine's
-  sockets and scheduling moved the API's numbers by a quarter from one day to the next, and the
-  anchor says whether the machine or the API moved.
+  sockets and scheduling moved the API's numbers by a quarter within a day, and the anchor says
+  whether the machine or the API moved.
 - **Admission**: 100 concurrent paper plans, then 40 concurrent 20,000-step plans (two slots, a
   2 s timeout), `/healthz` polled all along.
 - **Kernels**: the compiled anchor and the engine's rows (`bench_anchor.py`).
@@ -243,7 +243,7 @@ def requests_and_admission(directory: Path) -> list[Goal]:
     proc, url = bench_http.start_server(directory)
     try:
         bench_http.run(url, 2, 4, False)  # connections, caches
-        answer_bytes = len(httpx.post(url + "/v1/plans", json=PAPER, timeout=60).content)
+        answer_bytes = len(httpx.post(url + "/v1/plans", json=bench_http.body(False), timeout=60).content)  # as timed
         one, _ = bench_http.run(url, 1, 48, False)
         four, wall = bench_http.run(url, 4, 24, False)
         p50 = statistics.median(one) * 1e3

@@ -354,6 +354,6 @@ def image_response(request: Request, content: bytes, fmt: str, hit: bool, immuta
         "X-Figure-Cache": "hit" if hit else "miss",
         "Cache-Control": "public, max-age=86400" if immutable else "no-cache",
     }
-    if _none_match(request.headers.get("if-none-match"), etag):
+    if _none_match(",".join(request.headers.getlist("if-none-match")) or None, etag):  # a list may span lines
         return Response(status_code=304, headers=headers)
     return Response(content, media_type=figures.FORMATS[fmt], headers=headers)

@@ -745,8 +745,9 @@ def draw_scene(ax: Any, data: PlanData) -> None:
         for k, segment in enumerate(shape_outline(shape)):
             ax.plot(*segment.T, color="C4", linewidth=0.7, alpha=0.8, label="obstacles" if i == 0 and k == 0 else None, zorder=1)
     missing = [f"obstacle{i}" for i, shape in enumerate(data.obstacles) if shape is None]
-    if missing:  # an empty line whose legend entry says what is not drawn
-        ax.plot([], [], [], color="none", label=f"not drawn (mesh deleted since): {', '.join(missing)}")
+    if missing:  # an empty line whose legend entry says what is not drawn (at most three named)
+        more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+        ax.plot([], [], [], color="none", label=f"not drawn (mesh deleted since): {', '.join(missing[:3])}{more}")
     closest = closest_pair(data)
     if closest is not None:
         points_ab, label = closest
@@ -1246,6 +1247,12 @@ class LRUCache:
                 _, dropped = self._data.popitem(last=False)
                 self._bytes -= len(dropped)
 
+    def discard_where(self, drop: Callable[[tuple[Any, ...]], bool]) -> None:
+        """Forget the figures whose key ``drop`` says."""
+        with self._lock:
+            for key in [key for key in self._data if drop(key)]:
+                self._bytes -= len(self._data.pop(key))
+
     def __len__(self) -> int:
         return len(self._data)
 
@@ -1260,6 +1267,15 @@ def plan_data(plan_id: str, load: Callable[[], PlanData]) -> PlanData:
     """The decoded arrays of a plan, from a small LRU (decoding a long plan's JSON costs more
     than drawing one figure, and a plan page asks for all of them at once)."""
     return _DATA.get(plan_id, load)
+
+
+def forget_obstacles() -> None:
+    """A stored mesh was deleted: forget this process's decoded plans (their obstacles are read
+    with them) and its rendered scene figures, the one kind that draws obstacles, so that they
+    are drawn again without it (and say so). Other API processes keep theirs until they drop
+    them (a few plans; figures as the LRU turns over)."""
+    _DATA.clear()
+    CACHE.discard_where(lambda key: "scene-3d" in key)
 
 
 def cached(key: tuple[Any, ...], make: Callable[[], bytes]) -> tuple[bytes, bool]:

@@ -44,6 +44,11 @@ class Lru(Generic[K, V]):
         with self._lock:
             self._values.pop(key, None)
 
+    def clear(self) -> None:
+        """Forget every value."""
+        with self._lock:
+            self._values.clear()
+
     def put(self, key: K, value: V) -> None:
         """Keep ``value`` for ``key`` (the most recent)."""
         with self._lock:

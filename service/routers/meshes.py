@@ -8,6 +8,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Request, Response, status
 
+from service import figures
 from service.deps import DbDep, Limit, Offset, SessionDep, SessionRoute, SettingsDep, run_admitted
 from service.errors import ApiValidationError, Problem, responses
 from service.schemas.common import ID_PATTERN
@@ -111,4 +112,5 @@ def delete_mesh(mesh_id: MeshId, db: DbDep) -> Response:
     from service.models import Mesh
 
     rows.delete(db, Mesh, mesh_id, "mesh")
+    figures.forget_obstacles()  # stored plans' scene figures drew it
     return Response(status_code=status.HTTP_204_NO_CONTENT)

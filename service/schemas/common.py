@@ -60,7 +60,8 @@ Inertia = Annotated[
 RotationRow = Annotated[list[Annotated[float, Field(ge=-1.000001, le=1.000001)]], Field(min_length=3, max_length=3)]
 Rotation = Annotated[list[RotationRow], Field(min_length=3, max_length=3, description="a rotation matrix (orthonormal, det +1)")]
 #: Joint positions of one unit, index-aligned with the robot's joints (null: a joint of the other
-#: unit): revolute joints' angles in degrees, prismatic joints' displacements in metres.
+#: unit): revolute joints' angles in degrees (:data:`JointValues`), prismatic joints' displacements
+#: in metres (:data:`JointLengths`).
 JointValues = Annotated[list[AngleDeg | None], Field(min_length=1, max_length=MAX_JOINTS)]
 JointLengths = Annotated[list[Length | None], Field(min_length=1, max_length=MAX_JOINTS)]
 LimitValue = Annotated[float, Field(ge=-MAX_JOINT_LIMIT, le=MAX_JOINT_LIMIT)]

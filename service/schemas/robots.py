@@ -375,7 +375,8 @@ class JacobianOut(Output):
     )
     determinant: float | None = Field(description=f"det of the GJM, {DET_UNITS}; null unless it is square")
     manipulability: float = Field(
-        description=f"the product of the singular values (sqrt(det(J J^T)) for 6 or more joints), {DET_UNITS}"
+        description=f"the product of the singular values (sqrt(det(J J^T)) for 6 or more joints), {DET_UNITS}; with fewer "
+        "than 6 joints it mixes the rows' units and has none of its own"
     )
     condition_number: float | None = Field(
         description="largest over smallest singular value (dimensionless); null if the GJM is singular"

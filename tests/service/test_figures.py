@@ -98,6 +98,8 @@ def test_plan_figure_is_cached(client: httpx.Client, plans: dict[str, str]) -> N
     for header in (etag, f"W/{etag}", f'"other", {etag}', "*"):
         revalidated = client.get(url, headers={"if-none-match": header})
         assert revalidated.status_code == 304 and revalidated.headers["etag"] == etag, header
+    two_lines = client.get(url, headers=[("if-none-match", '"other"'), ("if-none-match", etag)])  # a list over two lines
+    assert two_lines.status_code == 304
     for header in ('"other"', f'"{etag.strip(chr(34))}x"'):
         assert client.get(url, headers={"if-none-match": header}).status_code == 200, header
 

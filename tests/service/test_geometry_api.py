@@ -164,12 +164,15 @@ def test_meshes_are_stored_once_checked_and_used_as_obstacles(client: httpx.Clie
     # a stored plan with a box and the mesh, before the mesh is deleted
     both = {**as_box, "scene": {"obstacles": [PANEL, {"type": "mesh", "mesh_id": mesh["id"]}]}}
     c = client.post("/v1/plans", params={"fields": ""}, json={"robot_id": "table1-geometry", "task": both}).json()
+    before = client.get(f"/v1/plans/{c['id']}/figures/scene-3d", params={"format": "svg"})  # rendered, and kept
+    assert before.status_code == 200 and b"not drawn" not in before.content
     assert client.delete(f"/v1/meshes/{mesh['id']}").status_code == 204
     assert client.get(f"/v1/meshes/{mesh['id']}").status_code == 404
     # its figures keep the box (a deleted mesh took every obstacle with it) and say what they leave out
     assert len(client.get(f"/plans/{c['id']}/scene.json").json()["obstacles"]) == 1
     figure = client.get(f"/v1/plans/{c['id']}/figures/scene-3d", params={"format": "svg"})
     assert figure.status_code == 200 and b"not drawn (mesh deleted since): obstacle1" in figure.content
+    assert figure.headers["x-figure-cache"] == "miss" and figure.headers["etag"] != before.headers["etag"]
     replanned = client.post("/v1/plans", json={"robot_id": "table1-geometry", "task": as_mesh})
     assert _fields(replanned) == ["body.task.scene.obstacles[0].mesh.mesh_id"]
 
