@@ -12,6 +12,8 @@ import sys
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
+from pydantic import ValidationError
+
 from service.infra.collector import pause_collector
 from service.infra.logs import Say, configure, messenger
 from service.infra.settings import Settings
@@ -257,7 +259,13 @@ def _stop_while_starting(logger: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    settings = Settings()
+    try:
+        settings = Settings()
+    except ValidationError as exc:  # a line per variable, not a traceback
+        for error in exc.errors():
+            name = "SPACEARM_" + "_".join(str(part) for part in error["loc"]).upper()
+            print(f"spacearm: {name}={error.get('input')!r}: {error['msg']}", file=sys.stderr)
+        return 2
     log_format = args.log_format or settings.log_format
     log_level = args.log_level or settings.log_level
     log_config = configure(log_format, log_level, verbose=args.verbose)

@@ -1,4 +1,4 @@
-"""The storage quota: new plans, jobs and robots are refused with 507 once the database holds
+"""The storage quota: new robots, meshes, plans, landscapes and jobs are refused with 507 once the database holds
 ``SPACEARM_STORAGE_QUOTA_BYTES`` (SQLite: the pages in use, so deleted data frees room; PostgreSQL:
 ``pg_database_size``)."""
 

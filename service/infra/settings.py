@@ -36,8 +36,8 @@ class Settings(BaseSettings):
     max_replay_steps: int = Field(
         default=20_000,
         ge=0,
-        description="plans with more steps are not replayed synchronously (the replay costs about 20-30 us per step: "
-        "0.4-0.6 s for 20,000 steps)",
+        description="plans with more steps are not replayed synchronously (the replay costs some 20 us per step: "
+        "0.4 s for 20,000 steps on a 2-core machine)",
     )
     dask_scheduler: str | None = Field(
         default=None,
@@ -89,7 +89,8 @@ class Settings(BaseSettings):
     storage_quota_bytes: int | None = Field(
         default=10 * 2**30,
         ge=1,
-        description="size of the database (plans, jobs, robots) beyond which new plans and jobs get 507; unset for no quota",
+        description="size of the database beyond which new robots, meshes, plans, landscapes and jobs get 507; empty or "
+        "`none` for no quota",
     )
     cookie_secure: bool = Field(default=False, description="mark the sign-in cookie Secure (set it when clients use HTTPS)")
     session_hours: float = Field(default=12.0, gt=0, le=24 * 365, description="lifetime of a web sign-in session")
@@ -99,9 +100,10 @@ class Settings(BaseSettings):
     retention_days: float | None = Field(
         default=None,
         gt=0,
-        description="finished tuning jobs and plans older than this many days are deleted; unset: kept for ever",
+        description="finished tuning jobs, plans and landscapes older than this many days are deleted; unset (or empty): "
+        "kept for ever",
     )
-    retention_sweep_s: float = Field(default=600.0, gt=0, description="how often the API looks for expired jobs and plans")
+    retention_sweep_s: float = Field(default=600.0, gt=0, description="how often the API looks for expired rows")
     allowed_hosts: str = Field(
         default="",
         max_length=10_000,
@@ -148,6 +150,15 @@ class Settings(BaseSettings):
     @classmethod
     def _lower(cls, value: object) -> object:
         return value.lower() if isinstance(value, str) else value
+
+    @field_validator(
+        "db_pool_size", "max_concurrent_plans", "storage_quota_bytes", "retention_days", "max_connections", mode="before"
+    )
+    @classmethod
+    def _none(cls, value: object) -> object:
+        """An optional number given empty or as ``none``: none (an empty value failed to parse as
+        a number, which left no way to turn the storage quota off)."""
+        return None if isinstance(value, str) and value.strip().lower() in ("", "none") else value
 
     def pool_size(self) -> int:
         return self.db_pool_size or self.api_threads + 2

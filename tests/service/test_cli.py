@@ -72,6 +72,19 @@ def test_help_lists_commands_options_and_environment() -> None:
         assert text in run.stdout, text
 
 
+def test_a_bad_setting_is_a_line_naming_the_variable_and_an_empty_optional_one_is_none(tmp_path: Path) -> None:
+    """An invalid SPACEARM_* value was a pydantic traceback; an empty optional number (the
+    documented way to turn the storage quota off) failed to parse."""
+    env = {**os.environ, "SPACEARM_DATABASE_URL": f"sqlite:///{tmp_path / 'x.db'}", "SPACEARM_PORT": "abc"}
+    bad = spacearm("migrate", env=env)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr, bad.stderr
+    assert "spacearm: SPACEARM_PORT='abc': Input should be a valid integer" in bad.stderr
+    for empty in ("", "none", "None"):
+        settings = Settings(**{"storage_quota_bytes": empty, "retention_days": empty, "db_pool_size": empty})  # type: ignore[arg-type]
+        assert (settings.storage_quota_bytes, settings.retention_days, settings.db_pool_size) == (None, None, None)
+    assert Settings.model_fields["storage_quota_bytes"].default == 10 * 2**30  # unset: the default, 10 GiB
+
+
 def test_migrate_keeps_alembic_quiet_unless_asked(tmp_path: Path) -> None:
     def migrate(name: str, *args: str, **env: str) -> str:
         inherited = {k: v for k, v in os.environ.items() if k != "SPACEARM_LOG_LEVEL"}
