@@ -335,12 +335,10 @@ class UnknownFigureError(ApiError):
         )
 
 
-def _none_match(header: str | None, etag: str) -> bool:
-    """Whether an ``If-None-Match`` header matches ``etag`` (RFC 9110, 13.1.2): ``*``, or a
-    comma-separated list of entity tags compared weakly (``W/"x"`` matches ``"x"``: a proxy that
-    compresses the answer may weaken the tag it passes on)."""
-    if header is None:
-        return False
+def _none_match(header: str, etag: str) -> bool:
+    """Whether an ``If-None-Match`` header (empty: none) matches ``etag`` (RFC 9110, 13.1.2): ``*``,
+    or a comma-separated list of entity tags compared weakly (``W/"x"`` matches ``"x"``: a proxy
+    that compresses the answer may weaken the tag it passes on)."""
     if header.strip() == "*":
         return True
     opaque = etag.removeprefix("W/")
@@ -354,6 +352,6 @@ def image_response(request: Request, content: bytes, fmt: str, hit: bool, immuta
         "X-Figure-Cache": "hit" if hit else "miss",
         "Cache-Control": "public, max-age=86400" if immutable else "no-cache",
     }
-    if _none_match(",".join(request.headers.getlist("if-none-match")) or None, etag):  # a list may span lines
+    if _none_match(",".join(request.headers.getlist("if-none-match")), etag):  # a list may span lines
         return Response(status_code=304, headers=headers)
     return Response(content, media_type=figures.FORMATS[fmt], headers=headers)
